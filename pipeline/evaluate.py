@@ -55,7 +55,11 @@ def solve_time_per_1000(model: IKNet, pose: torch.Tensor, repeats: int) -> float
 
 
 def evaluate_method(
-    model: IKNet, safety: SafetyModel, groups: dict[int, tuple[pd.DataFrame, torch.Tensor]], repeats: int
+    model: IKNet,
+    safety: SafetyModel,
+    groups: dict[int, tuple[pd.DataFrame, torch.Tensor]],
+    all_pose: torch.Tensor,
+    repeats: int,
 ) -> tuple[dict[int, pd.DataFrame], dict[int, torch.Tensor], float]:
     """Per-group solution tables and joints, and the solve time per 1 000 holes (ms)."""
     tables, joints = {}, {}
@@ -63,7 +67,6 @@ def evaluate_method(
         for k, (_, pose) in groups.items():
             joints[k] = model(pose.float()).double()
             tables[k] = solution_table(pose, joints[k], safety)
-    all_pose = torch.cat([p for _, p in groups.values()])
     return tables, joints, solve_time_per_1000(model, all_pose, repeats)
 
 
@@ -75,13 +78,14 @@ def run(cfg: DictConfig) -> dict:
     groups = test_groups(data / "holes")
     out = data / "eval"
     methods = list(cfg.eval.methods)
+    all_pose = torch.cat([p for _, p in groups.values()])  # every test hole, in group order
     models = {m: load_checkpoint(data / "models" / f"{m}.pt") for m in methods}  # fail before writing
     metrics, per_group, histories, projections = {}, {}, {}, {}
     for method, (model, meta) in models.items():
         if model.n_out != safety.boom.n_joints:
             raise InputError(f"{method}.pt outputs {model.n_out} joints; boom '{safety.boom.name}' has "
                              f"{safety.boom.n_joints}")
-        tables, joints, ms = evaluate_method(model, safety, groups, int(cfg.eval.timing_repeats))
+        tables, joints, ms = evaluate_method(model, safety, groups, all_pose, int(cfg.eval.timing_repeats))
         for k, (df, pose) in groups.items():
             pred = pd.concat([holes_frame(pose, df["hole_id"].to_numpy()),
                               joints_frame(joints[k], safety.boom.joint_names)], axis=1)
@@ -91,7 +95,6 @@ def run(cfg: DictConfig) -> dict:
         metrics[method] = {**summarize(allt), "solve_ms_per_1000": ms,
                            "per_group_hole_mm_mean": {k: float(t["hole_mm"].mean()) for k, t in tables.items()}}
         histories[method] = pd.DataFrame(meta.get("history", []))
-        all_pose = torch.cat([p for _, p in groups.values()])
         projections[method] = (all_pose[:, 1].numpy(), all_pose[:, 2].numpy(), allt["hole_mm"].to_numpy())
     collisions = collision_table(per_group)
     write_json(metrics, out / "metrics.json")

@@ -142,3 +142,23 @@ def test_dvc_repro_in_a_copy_then_up_to_date_and_a_param_change_reruns_the_right
     assert "Running stage 'train@uikm'" in rerun and "Running stage 'evaluate'" in rerun
     for untouched in ["generate", "train@sikm", "train@cuikm"]:
         assert f"Stage '{untouched}' didn't change" in rerun
+
+
+@pytest.mark.skipif(os.environ.get("BOOM_IK_RAY_TESTS") != "1", reason="opt-in: BOOM_IK_RAY_TESTS=1, [ray] extra")
+def test_ray_launcher_against_a_local_head(tiny_data):
+    """The same two-job sweep on a Ray cluster: a local head started (and stopped) by the test."""
+    import socket
+
+    ray = shutil.which("ray", path=str(Path(sys.executable).parent))
+    assert ray, "the ray command is missing: pip install -e '.[ray]'"
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    _run([ray, "start", "--head", f"--port={port}", "--num-cpus=2", "--include-dashboard=false",
+          "--disable-usage-stats"], timeout=180)
+    try:
+        _, client, runs = _sweep(tiny_data, "ray", "hydra/launcher=ray_cluster",
+                                 f"hydra.launcher.ray.init.address=127.0.0.1:{port}")
+        _check_parent_and_children(client, runs, tiny_data, "ray")
+    finally:
+        subprocess.run([ray, "stop", "--force"], capture_output=True, timeout=120, env=_env())
