@@ -15,3 +15,16 @@ PAPER000_TABLE3 = {
 }
 
 PAPER000_NM_SPEEDUP = 115.6  # networks vs numerical method, solve time
+
+# Paper 001 (RBF, 63 face holes): mean / max collar error per axis (mm), RBF and its NM.
+PAPER_001 = {"rbf": {"x_mean": 0.591, "y_mean": 0.465, "x_max": 2.588, "y_max": 2.336},
+             "nm": {"x_mean": 3.592, "y_mean": 1.168, "x_max": 25.589, "y_max": 10.611}}
+
+# Paper 002 (huang9): errors of the global best after 50 / 100 iterations, mean iterations to
+# reach (position, orientation) accuracies, and CEOPSO's population table (mean iterations).
+PAPER_002 = {
+    "after_100": {"pso": (7.4, 0.0163), "eopso": (2.7, 0.0122), "ceopso": (0.1, 0.0019)},  # (mm, rad)
+    "after_50": {"ceopso": (1.8, 0.0025)},
+    "reach": {(1.0, 0.0174): (149, 107, 42), (1.0, 0.0017): (211, 160, 53), (0.1, 0.0017): (298, 249, 70)},
+    "population_iters": {200: 269.5, 400: 196.3, 600: 140.3, 800: 82.2, 1000: 74.5},
+}

@@ -1,0 +1,295 @@
+"""Baseline solvers: each reaches easy targets, the papers' claimed mechanisms, bad input."""
+
+import math
+
+import pandas as pd
+import pytest
+import torch
+from mlflow.tracking import MlflowClient
+
+from pipeline import benchmark, generate, paper_baselines, train
+from pipeline.config import compose
+from pipeline.errors import ConfigError, InputError
+from pipeline.setup import load_boom
+from pipeline.solvers import build_solver
+from pipeline.solvers.base import FrameTargets, HoleTargets, JointSpace, rotation_angle, tool_transform
+from pipeline.solvers.ga import GAParams, GeneticIK
+from pipeline.solvers.newton import LevenbergMarquardt
+from pipeline.solvers.pso import ParticleSwarm, params_for
+from pipeline.solvers.rbf import ExactRBF, RBFSolver, align, rpy
+
+COUPLINGS = [{"coeffs": {"q2": 1, "q5": 1}, "value": 0}, {"coeffs": {"q1": 1, "q6": -1}, "value": 0}]
+
+
+def random_q(boom, n, seed, locks=None):
+    space = JointSpace(boom, locks)
+    return space.full(space.uniform((n,), torch.Generator().manual_seed(seed)))
+
+
+def frames_of(boom, q):
+    return FrameTargets.from_transforms(tool_transform(boom, q))
+
+
+# ------------------------------------------------------------------ targets and errors
+def test_rotation_angle_matches_a_known_rotation():
+    a = torch.tensor([0.3, -1.2, 2.9], dtype=torch.float64)
+    axis = torch.nn.functional.normalize(torch.tensor([1.0, 2.0, -0.5], dtype=torch.float64), dim=0)
+    K = torch.tensor([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]], dtype=torch.float64)
+    R = [torch.linalg.matrix_exp(angle * K) for angle in a.abs()]
+    got = torch.stack([rotation_angle(r, torch.eye(3, dtype=torch.float64)) for r in R])
+    assert torch.allclose(got, a.abs(), atol=1e-12)
+
+
+def test_hole_errors_agree_with_the_pose_error_metric(jumbo8):
+    from pipeline.kinematics import pose_errors
+
+    q, q2 = random_q(jumbo8, 50, 0), random_q(jumbo8, 50, 1)
+    targets = HoleTargets(jumbo8.pose6(q2), jumbo8.preview_depth)
+    mine = targets.errors(tool_transform(jumbo8, q))
+    ref = pose_errors(jumbo8.pose6(q), targets.pose)
+    pairs = [("position", "start"), ("preview", "preview"), ("hole", "hole"), ("orientation", "direction")]
+    for k_mine, k_ref in pairs:
+        assert torch.allclose(mine[k_mine], ref[k_ref], atol=1e-10)
+
+
+def test_bad_targets_are_named():
+    with pytest.raises(InputError, match="shape"):
+        HoleTargets(torch.zeros(3, 5), 3.3)
+    with pytest.raises(InputError, match="rows \\[1\\]"):
+        HoleTargets(torch.tensor([[0.0] * 6, [math.nan] * 6]), 3.3)
+    with pytest.raises(InputError, match="unknown joint"):
+        JointSpace(load_boom("jumbo8"), {"q9": 1.0})
+    with pytest.raises(InputError, match="outside the joint range"):
+        JointSpace(load_boom("jumbo8"), {"q8": 9.0})
+
+
+# ------------------------------------------------------------------ numerical method (paper 000)
+def test_nm_jacobian_matches_finite_differences(jumbo8):
+    nm = LevenbergMarquardt(jumbo8)
+    q = random_q(jumbo8, 8, 2)
+    targets = HoleTargets(jumbo8.pose6(random_q(jumbo8, 8, 3)), jumbo8.preview_depth)
+    x = q[:, nm.space.free]
+    _, J = nm.jacobian(x, targets)
+    eps = 1e-6
+    fd = torch.stack([(nm.residual(x + eps * e, targets) - nm.residual(x - eps * e, targets)) / (2 * eps)
+                      for e in torch.eye(nm.space.n, dtype=torch.float64)], dim=-1)
+    assert torch.allclose(J, fd, atol=1e-7)
+
+
+def test_nm_solves_reachable_holes_to_micrometres(jumbo8):
+    targets = HoleTargets(jumbo8.pose6(random_q(jumbo8, 40, 4)), jumbo8.preview_depth)
+    result = LevenbergMarquardt(jumbo8, restarts=3).solve(targets)
+    assert result.errors["hole"].max() < 1e-5
+    assert jumbo8.within_limits(result.q).all()
+
+
+def test_coupled_nm_keeps_its_couplings_and_solves_coupled_poses(jumbo8):
+    q = random_q(jumbo8, 30, 5)
+    q[:, 4], q[:, 5] = -q[:, 1], q[:, 0]  # poses a coupled boom can reach
+    targets = HoleTargets(jumbo8.pose6(q), jumbo8.preview_depth)
+    result = LevenbergMarquardt(jumbo8, couplings=COUPLINGS, restarts=10).solve(targets)
+    solved = result.errors["hole"] < 1e-5
+    assert solved.float().mean() >= 0.9
+    qs = result.q[solved]
+    assert torch.allclose(qs[:, 1] + qs[:, 4], torch.zeros(len(qs), dtype=torch.float64), atol=1e-6)
+    assert torch.allclose(qs[:, 0] - qs[:, 5], torch.zeros(len(qs), dtype=torch.float64), atol=1e-6)
+
+
+def test_nm_polishes_a_rough_start_without_leaving_its_neighbourhood(jumbo8):
+    """The CUIKM+NM idea: from a start near a solution, a few NM steps land on the nearby one."""
+    space = JointSpace(jumbo8)
+    mid, half = 0.5 * (space.lower + space.upper), 0.5 * (space.upper - space.lower)
+    # interior joints: at a limit the projected step can stall, which is not what this tests
+    q = space.full(mid + 0.8 * half * (2 * torch.rand(20, space.n, generator=torch.Generator().manual_seed(6),
+                                                       dtype=torch.float64) - 1))
+    targets = HoleTargets(jumbo8.pose6(q), jumbo8.preview_depth)
+
+    class Rough:  # a stand-in for the network: the true joints plus 0.02 of noise
+        def solve(self, t):
+            noise = 0.02 * torch.randn(q.shape, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+            return type("R", (), {"q": JointSpace(jumbo8).clamp(q + noise)})
+
+    result = LevenbergMarquardt(jumbo8, max_iters=10, init=Rough()).solve(targets)
+    assert result.errors["hole"].max() < 1e-6
+    assert (result.q - q).abs().max() < 0.2
+
+
+# ------------------------------------------------------------------ PSO family (paper 002)
+def test_ceopso_reaches_easy_targets():
+    boom = load_boom("rescue6")
+    targets = frames_of(boom, random_q(boom, 10, 7))
+    result = ParticleSwarm(boom, params_for("ceopso", {"population": 200, "iterations": 150})).solve(targets)
+    assert result.errors["position"].median() < 2e-3  # 2 mm on a 1.1 m arm
+    assert result.errors["orientation"].median() < 0.02
+
+
+@pytest.mark.parametrize("switch", ["crossover", "opposition"])
+def test_each_ceopso_mechanism_improves_the_best_fitness(switch):
+    """Same seed, same targets: CEOPSO against CEOPSO without one of its steps (paper 002 sect. 3)."""
+    boom = load_boom("rescue6")
+    targets = frames_of(boom, random_q(boom, 50, 3))
+
+    def final(**kw):
+        params = params_for("ceopso", {"population": 100, "iterations": 60, "seed": 0, **kw})
+        r = ParticleSwarm(boom, params).solve(targets)
+        return (0.5 * r.errors["position"] + 0.5 * r.errors["orientation"]).mean()
+
+    assert final() < final(**{switch: False})
+
+
+def test_pso_trace_first_reach():
+    from pipeline.solvers.pso import SwarmTrace
+
+    position = torch.tensor([[5.0, 5.0], [0.5, 5.0], [0.4, 0.5]])
+    tr = SwarmTrace(position, torch.tensor([[1.0, 1.0], [0.0, 1.0], [0.0, 0.0]]))
+    assert tr.first_reach(1.0, 0.1).tolist() == [1, 2]
+    assert tr.first_reach(0.1, 0.1).tolist() == [-1, -1]
+
+
+def test_bad_pso_parameters_are_named():
+    with pytest.raises(ConfigError, match="population"):
+        params_for("ceopso", {"population": 1})
+    with pytest.raises(ConfigError, match="variant"):
+        params_for("superpso")
+
+
+# ------------------------------------------------------------------ GA (paper 003)
+def test_ga_with_space_decomposition_recovers_table3_pose1():
+    boom = load_boom("rescue6")
+    q = torch.deg2rad(torch.tensor([[0, 0, 0, 0, 0, 30.0]], dtype=torch.float64))
+    solver = GeneticIK(boom, GAParams(decomposition=True, generations=60))
+    result = solver.solve(frames_of(boom, q))
+    assert solver.level.tolist() == [1]
+    assert torch.rad2deg((result.q - q).abs()).max() < 0.05
+    assert result.errors["position"].item() < 1e-4
+
+
+def test_ga_decoding_covers_the_box_ends():
+    boom = load_boom("rescue6")
+    ga = GeneticIK(boom, GAParams(bits=4))
+    lo, hi = ga.space.lower, ga.space.upper
+    ones, zeros = torch.ones(6 * 4, dtype=torch.bool), torch.zeros(6 * 4, dtype=torch.bool)
+    assert torch.allclose(ga.decode(ones, lo, hi), hi) and torch.allclose(ga.decode(zeros, lo, hi), lo)
+
+
+def test_plain_ga_gets_near_an_easy_target():
+    boom = load_boom("rescue6")
+    targets = frames_of(boom, random_q(boom, 4, 8))
+    result = GeneticIK(boom, GAParams(generations=150)).solve(targets)
+    assert result.errors["position"].median() < 0.02  # 2 cm: a broken GA stays at ~0.3 m
+
+
+# ------------------------------------------------------------------ RBF (paper 001)
+def test_rbf_interpolates_its_training_points_exactly():
+    g = torch.Generator().manual_seed(0)
+    X, Y = torch.rand(300, 6, generator=g, dtype=torch.float64), torch.rand(300, 7, generator=g, dtype=torch.float64)
+    net = ExactRBF(X, Y, spread=0.3)  # well conditioned at this size: the test checks the algebra
+    assert torch.allclose(net(X), Y, atol=1e-8)
+    assert not torch.allclose(net(X + 0.05), Y, atol=1e-3)
+
+
+def test_rpy_and_align_round_trip():
+    boom = load_boom("jumbo8")
+    R = tool_transform(boom, random_q(boom, 20, 9))[:, :3, :3]
+    r, p, y = rpy(R).unbind(-1)
+    Rz = torch.stack([torch.stack([y.cos(), -y.sin(), 0 * y], -1), torch.stack([y.sin(), y.cos(), 0 * y], -1),
+                      torch.stack([0 * y, 0 * y, 1 + 0 * y], -1)], -2)
+    Ry = torch.stack([torch.stack([p.cos(), 0 * p, p.sin()], -1), torch.stack([0 * p, 1 + 0 * p, 0 * p], -1),
+                      torch.stack([-p.sin(), 0 * p, p.cos()], -1)], -2)
+    Rx = torch.stack([torch.stack([1 + 0 * r, 0 * r, 0 * r], -1), torch.stack([0 * r, r.cos(), -r.sin()], -1),
+                      torch.stack([0 * r, r.sin(), r.cos()], -1)], -2)
+    assert torch.allclose(Rz @ Ry @ Rx, R, atol=1e-12)
+    a = torch.tensor([1.0, 0, 0], dtype=torch.float64)
+    b = torch.nn.functional.normalize(torch.tensor([[1.0, 0.2, -0.1]], dtype=torch.float64), dim=-1)
+    assert torch.allclose(align(a, b)[0] @ a, b[0], atol=1e-12)
+
+
+def test_rbf_solver_fits_its_paper_setup_on_a_small_sample(jumbo8):
+    solver = RBFSolver(jumbo8, samples=200, train=150, locks={"q8": 2.25}).fit()
+    assert solver.space.n == 7 and solver.test_set[0].shape == (50, 6)
+    result = solver.solve(HoleTargets(jumbo8.pose6(random_q(jumbo8, 5, 10)), jumbo8.preview_depth))
+    assert jumbo8.within_limits(result.q).all()
+    assert torch.allclose(result.q[:, 7], torch.full((5,), 2.25, dtype=torch.float64))
+
+
+# ------------------------------------------------------------------ config and stages
+def test_build_solver_names_bad_entries(jumbo8, tmp_path):
+    with pytest.raises(ConfigError, match="kind"):
+        build_solver("x", {"kind": "magic"}, jumbo8, tmp_path)
+    with pytest.raises(ConfigError, match="benchmark.solvers.nm"):
+        build_solver("nm", {"kind": "nm", "max_iter": 3}, jumbo8, tmp_path)
+    with pytest.raises(ConfigError, match="not a free joint"):
+        build_solver("nm", {"kind": "nm", "couplings": [{"coeffs": {"theta2": 1}}]}, jumbo8, tmp_path)
+
+
+def tiny(tmp, *extra):
+    return compose([
+        "experiment=quick", f"paths.data={tmp}/data", f"tracking.uri=sqlite:///{tmp}/mlflow.db",
+        f"tracking.artifact_root={tmp}/artifacts", "train.steps=30", "model.width=32", "train.log_model=false",
+        "benchmark.holes=12", "benchmark.single=2", "benchmark.methods=[cuikm,nm,cuikm_nm,rbf,ceopso,ga]",
+        "benchmark.solvers.rbf.samples=300", "benchmark.solvers.rbf.train=250",
+        "benchmark.solvers.ceopso.population=60", "benchmark.solvers.ceopso.iterations=20",
+        "benchmark.solvers.ga.generations=10", *extra,
+    ])
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("bench")
+    generate.run(tiny(tmp))
+    train.run(tiny(tmp, "method=cuikm"))
+    return tmp, benchmark.run(tiny(tmp))
+
+
+def test_benchmark_writes_one_row_per_method_and_logs_it(bench):
+    tmp, df = bench
+    out = tmp / "data" / "benchmark"
+    on_disk = pd.read_csv(out / "results.csv")
+    assert on_disk["method"].tolist() == ["cuikm", "nm", "cuikm_nm", "rbf", "ceopso", "ga"]
+    assert set(benchmark.COLUMNS) == set(on_disk.columns)
+    assert (on_disk["holes"] == 12).all() and on_disk[["hole_mm_mean", "batch_ms_per_hole"]].notna().all().all()
+    nm = on_disk.set_index("method").loc["nm"]
+    assert nm["solved_1mm_share"] >= 0.9  # the numerical method is the accuracy reference
+    assert (out / "results.md").read_text().count("\n|") >= 7 and (out / "figures" / "error_vs_time.png").exists()
+    client = MlflowClient(f"sqlite:///{tmp}/mlflow.db")
+    exp = client.get_experiment_by_name("boom-ik-quick")
+    runs = client.search_runs([exp.experiment_id], "tags.stage = 'benchmark'")
+    assert len(runs) == 1 and "nm.hole_mm_mean" in runs[0].data.metrics
+
+
+def test_benchmark_names_unknown_methods_and_missing_models(bench, tmp_path):
+    tmp, _ = bench
+    with pytest.raises(ConfigError, match="no entry"):
+        benchmark.run(tiny(tmp, "benchmark.methods=[cuikm,warp_drive]"))
+    with pytest.raises(ConfigError, match="benchmark.holes"):
+        benchmark.run(tiny(tmp, "benchmark.holes=100000"))
+    with pytest.raises(InputError, match="missing"):
+        benchmark.run(tiny(tmp_path))
+
+
+def test_paper_baselines_small_budgets(bench):
+    tmp, _ = bench
+    cfg = tiny(tmp, "benchmark.papers.pso.runs=3", "benchmark.papers.pso.iterations=40",
+               "benchmark.papers.pso.populations=[40,80]", "benchmark.papers.pso.booms=[rescue6]",
+               "benchmark.papers.pso.population_boom=rescue6", "benchmark.papers.pso.checkpoints=[20,40]",
+               "benchmark.papers.ga.generations=10", "benchmark.papers.ga.poses_deg=[[0,0,0,0,0,30]]",
+               "benchmark.papers.rbf.groups=[1]", "tracking.enabled=false")
+    tables = paper_baselines.run(cfg)
+    assert tables["pso"]["method"].tolist() == ["pso", "eopso", "ceopso"]
+    assert tables["pso_population"]["population"].tolist() == [40, 80]
+    assert len(tables["ga"]) == 2 and set(tables["ga"]["pose"]) == {1}
+    assert tables["rbf"]["value"].notna().all()
+    assert (tmp / "data" / "benchmark" / "papers" / "papers.md").exists()
+
+
+def test_rbf_matches_scipys_gaussian_interpolator():
+    """A second implementation: SciPy's RBFInterpolator with the same Gaussian width, no polynomial."""
+    interpolate = pytest.importorskip("scipy.interpolate")
+    g = torch.Generator().manual_seed(1)
+    X, Y = torch.rand(200, 6, generator=g, dtype=torch.float64), torch.rand(200, 3, generator=g, dtype=torch.float64)
+    ours = ExactRBF(X, Y, spread=0.4)
+    ref = interpolate.RBFInterpolator(ours.centres.numpy(), ours.y_map.forward(Y).numpy(), kernel="gaussian",
+                                      epsilon=ours.b, degree=-1)
+    Xq = torch.rand(50, 6, generator=g, dtype=torch.float64)
+    expected = ours.y_map.inverse(torch.from_numpy(ref(ours.x_map.forward(Xq).numpy())))
+    assert torch.allclose(ours(Xq), expected, atol=1e-8)
