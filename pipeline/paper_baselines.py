@@ -119,9 +119,8 @@ def rbf_experiment(cfg, bcfg, data, boom_cfg) -> pd.DataFrame:
     feats, x = solver.test_set
     joint_err = (solver.net(feats) - x).abs()
     span = solver.space.upper - solver.space.lower
-    train_x = solver.net.x_map.inverse(solver.net.centres)
-    g = torch.Generator().manual_seed(int(spec.get("seed", 0)))
-    fit_err = (solver.net(train_x) - solver.space.uniform((solver.samples,), g)[: solver.train]).abs().max()
+    fit_feats, fit_x = solver.fit_set
+    fit_err = (solver.net(fit_feats) - fit_x).abs().max()
     rows = [{"what": "fit samples: max abs joint error (interpolation residual, rad or m)", "value": float(fit_err)},
             {"what": "held-out samples: max joint error, % of range",
              "value": float((100 * joint_err / span).max())},

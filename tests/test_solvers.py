@@ -115,11 +115,14 @@ def test_nm_polishes_a_rough_start_without_leaving_its_neighbourhood(jumbo8):
 
 
 # ------------------------------------------------------------------ PSO family (paper 002)
-def test_ceopso_reaches_easy_targets():
+# Plain PSO is the weaker method by paper 002's own account (7.4 mm after 100 iterations against
+# CEOPSO's 0.1 mm), so it gets a wider bound; a broken swarm stays hundreds of mm away.
+@pytest.mark.parametrize(("variant", "bound_m"), [("pso", 0.02), ("eopso", 0.002), ("ceopso", 0.002)])
+def test_each_pso_variant_reaches_easy_targets(variant, bound_m):
     boom = load_boom("rescue6")
     targets = frames_of(boom, random_q(boom, 10, 7))
-    result = ParticleSwarm(boom, params_for("ceopso", {"population": 200, "iterations": 150})).solve(targets)
-    assert result.errors["position"].median() < 2e-3  # 2 mm on a 1.1 m arm
+    result = ParticleSwarm(boom, params_for(variant, {"population": 200, "iterations": 150})).solve(targets)
+    assert result.errors["position"].median() < bound_m  # on a 1.1 m arm
     assert result.errors["orientation"].median() < 0.02
 
 

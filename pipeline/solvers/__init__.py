@@ -43,7 +43,6 @@ def build_solver(name: str, spec: Mapping, boom: Boom, models_dir: Path, specs: 
                 if specs is None or init not in specs:
                     raise ConfigError(f"benchmark.solvers.{name}.init = {init!r}: no solver of that name")
                 spec["init"] = build_solver(init, specs[init], boom, models_dir, specs)
-            spec["couplings"] = [dict(c, coeffs=dict(c["coeffs"])) for c in spec.get("couplings", [])]
             return LevenbergMarquardt(boom, name=name, **spec)
         if kind == "rbf":
             return RBFSolver(boom, name=name, **spec)

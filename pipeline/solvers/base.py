@@ -59,6 +59,11 @@ class HoleTargets:
     def __len__(self) -> int:
         return self.pose.shape[0]
 
+    @property
+    def position(self) -> torch.Tensor:
+        """Collar points ``(B, 3)``: the position part of the target."""
+        return self.pose[:, :3]
+
     def subset(self, index) -> HoleTargets:
         return HoleTargets(self.pose[index], self.depth)
 

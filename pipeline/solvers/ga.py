@@ -179,7 +179,7 @@ class GeneticIK(Solver):
             x, _ = self.run(targets, self.space.lower.expand(B, n), self.space.upper.expand(B, n), g)
             self.level, self.accepted = torch.full((B,), n), torch.ones(B, dtype=torch.bool)
             return self.space.full(x), torch.full((B,), self.p.generations)
-        pos = targets.position if hasattr(targets, "position") else targets.pose[:, :3]
+        pos = targets.position
         margin = self.p.box_margin_mm / 1000
         best_x = self.home.expand(B, n).clone()
         best_e = torch.full((B,), math.inf, dtype=torch.float64)

@@ -101,6 +101,7 @@ class RBFSolver(Solver):
         self.space = JointSpace(boom, locks)
         self.samples, self.train, self.spread, self.seed, self.name = samples, train, spread, seed, name
         self.net: ExactRBF | None = None
+        self.fit_set: tuple[torch.Tensor, torch.Tensor] | None = None  # (features, free joints)
         self.test_set: tuple[torch.Tensor, torch.Tensor] | None = None
         home = torch.zeros(boom.n_joints, dtype=torch.float64)
         self.home_rotation = tool_transform(boom, home)[:3, :3]
@@ -109,8 +110,9 @@ class RBFSolver(Solver):
         g = torch.Generator().manual_seed(self.seed)
         x = self.space.uniform((self.samples,), g)
         feats = frame_features(tool_transform(self.boom, self.space.full(x)))
-        self.net = ExactRBF(feats[: self.train], x[: self.train], self.spread)
+        self.fit_set = feats[: self.train], x[: self.train]
         self.test_set = feats[self.train:], x[self.train:]
+        self.net = ExactRBF(*self.fit_set, self.spread)
         return self
 
     def hole_frames(self, targets: HoleTargets) -> torch.Tensor:
