@@ -52,10 +52,14 @@ def load_holes(holes_dir: Path, group: int, n: int) -> HoleTargets:
 
 
 def measure(solver: Solver, pose: torch.Tensor, depth: float, safety, single: int) -> tuple[dict, torch.Tensor]:
-    """One batched solve of every hole, then ``single`` holes one at a time (median latency)."""
+    """A batched solve of every hole (repeated up to 1 s for fast solvers, median time), then
+    ``single`` holes one at a time (median latency)."""
     targets = HoleTargets(pose, depth)
     solver.solve(targets.subset([0]))  # warm-up: lazy setup (RBF fit, first kernels) is not timed
     result = solver.solve(targets)
+    batch_s = [result.wall_s]
+    while sum(batch_s) < 1.0 and len(batch_s) < 20:  # fast solvers: median of repeats, not one noisy sample
+        batch_s.append(solver.solve(targets).wall_s)
     latencies = [solver.solve(targets.subset([i])).wall_s for i in range(min(single, len(targets)))]
     row = summarize(solution_table(pose, result.q, safety))
     return {
@@ -63,7 +67,7 @@ def measure(solver: Solver, pose: torch.Tensor, depth: float, safety, single: in
         "hole_mm_mean": row["hole_mm_mean"], "hole_mm_p95": row["hole_mm_p95"], "hole_mm_max": row["hole_mm_max"],
         "solved_1mm_share": row["solved_1mm_share"], "collision_rate_paper": row["collision_rate_paper"],
         "any_violation_share": row["any_violation_share"],
-        "batch_ms_per_hole": 1000 * result.wall_s / len(targets),
+        "batch_ms_per_hole": 1000 * statistics.median(batch_s) / len(targets),
         "single_ms_per_hole": 1000 * statistics.median(latencies) if latencies else float("nan"),
         "iterations_mean": float(result.iterations.double().mean()),
     }, result.q
