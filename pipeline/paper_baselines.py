@@ -121,19 +121,22 @@ def rbf_experiment(cfg, bcfg, data, boom_cfg) -> pd.DataFrame:
     span = solver.space.upper - solver.space.lower
     fit_feats, fit_x = solver.fit_set
     fit_err = (solver.net(fit_feats) - fit_x).abs().max()
-    rows = [{"what": "fit samples: max abs joint error (interpolation residual, rad or m)", "value": float(fit_err)},
-            {"what": "held-out samples: max joint error, % of range",
+    rows = [{"key": "fit_residual_max", "what": "fit samples: max abs joint error (interpolation residual, rad or m)",
+             "value": float(fit_err)},
+            {"key": "heldout_joint_error_max_pct", "what": "held-out samples: max joint error, % of range",
              "value": float((100 * joint_err / span).max())},
-            {"what": "held-out samples: mean joint error, % of range",
+            {"key": "heldout_joint_error_mean_pct", "what": "held-out samples: mean joint error, % of range",
              "value": float((100 * joint_err / span).mean())}]
     poses = torch.cat([read_poses(data / "holes" / f"test_group_{k}.parquet")[1] for k in cfg.groups]).double()
     result = solver.solve(HoleTargets(poses, boom.preview_depth))
     collar = (tool_transform(boom, result.q)[:, :3, 3] - poses[:, :3]).abs() * 1000
     for axis, k in zip("XYZ", range(3), strict=True):
-        rows.append({"what": f"test groups: collar error {axis} mean (mm)", "value": float(collar[:, k].mean())})
-        rows.append({"what": f"test groups: collar error {axis} max (mm)", "value": float(collar[:, k].max())})
+        rows.append({"key": f"collar_{axis.lower()}_mean_mm", "what": f"test groups: collar error {axis} mean (mm)",
+                     "value": float(collar[:, k].mean())})
+        rows.append({"key": f"collar_{axis.lower()}_max_mm", "what": f"test groups: collar error {axis} max (mm)",
+                     "value": float(collar[:, k].max())})
     hole_mm = 1000 * float(result.errors["hole"].mean())
-    rows.append({"what": "test groups: mean hole-seeking error (mm)", "value": hole_mm})
+    rows.append({"key": "hole_mm_mean", "what": "test groups: mean hole-seeking error (mm)", "value": hole_mm})
     return pd.DataFrame(rows)
 
 
@@ -156,6 +159,16 @@ def run(cfg: DictConfig) -> dict[str, pd.DataFrame]:
         tracking.setup(cfg.tracking.uri, cfg.tracking.experiment, cfg.tracking.artifact_root)
         with tracking.start(run_name="paper_baselines", tags={"stage": "paper_baselines"}):
             tracking.log_params(tracking.flatten({"papers": OmegaConf.to_container(papers, resolve=True)}))
+            metrics = {}
+            for r in tables["pso"].to_dict("records"):
+                metrics.update({f"pso.{r['boom']}.{r['method']}.{k}": v for k, v in r.items()
+                                if isinstance(v, float) and math.isfinite(v) and k != "wall_s"})
+            for r in tables["ga"].to_dict("records"):
+                tag = "ga_decomposition" if "decomposition" in r["method"] else "ga"
+                metrics[f"{tag}.pose{r['pose']}.position_error_mm"] = r["position_error_mm"]
+            metrics.update({f"rbf.{k}": v for k, v in zip(tables["rbf"]["key"], tables["rbf"]["value"], strict=True)
+                            if math.isfinite(v)})
+            tracking.log_metrics(metrics)
             for name, df in tables.items():
                 mlflow.log_table(df.astype({c: str for c in df.columns if df[c].dtype == object}),
                                  f"tables/{name}.json")

@@ -276,13 +276,17 @@ def test_paper_baselines_small_budgets(bench):
                "benchmark.papers.pso.populations=[40,80]", "benchmark.papers.pso.booms=[rescue6]",
                "benchmark.papers.pso.population_boom=rescue6", "benchmark.papers.pso.checkpoints=[20,40]",
                "benchmark.papers.ga.generations=10", "benchmark.papers.ga.poses_deg=[[0,0,0,0,0,30]]",
-               "benchmark.papers.rbf.groups=[1]", "tracking.enabled=false")
+               "benchmark.papers.rbf.groups=[1]")
     tables = paper_baselines.run(cfg)
     assert tables["pso"]["method"].tolist() == ["pso", "eopso", "ceopso"]
     assert tables["pso_population"]["population"].tolist() == [40, 80]
     assert len(tables["ga"]) == 2 and set(tables["ga"]["pose"]) == {1}
     assert tables["rbf"]["value"].notna().all()
     assert (tmp / "data" / "benchmark" / "papers" / "papers.md").exists()
+    client = MlflowClient(f"sqlite:///{tmp}/mlflow.db")
+    exp = client.get_experiment_by_name("boom-ik-quick")
+    (run,) = client.search_runs([exp.experiment_id], "tags.stage = 'paper_baselines'")
+    assert {"ga_decomposition.pose1.position_error_mm", "rbf.hole_mm_mean"} <= set(run.data.metrics)
 
 
 def test_rbf_matches_scipys_gaussian_interpolator():
