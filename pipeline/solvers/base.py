@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import torch
 
-from pipeline.errors import InputError
+from pipeline.errors import ConfigError, InputError
 from pipeline.kinematics import Boom
 
 
@@ -123,6 +123,13 @@ class FrameTargets:
 
 
 Targets = HoleTargets | FrameTargets
+
+
+def require(checks: Mapping[str, bool], what: str, value) -> None:
+    """Raise :class:`ConfigError` naming every failed condition of ``what`` and its value."""
+    failed = [name for name, ok in checks.items() if not ok]
+    if failed:
+        raise ConfigError(f"{what}: {', '.join(failed)} required; got {value}")
 
 
 class JointSpace:

@@ -25,9 +25,8 @@ from dataclasses import dataclass
 
 import torch
 
-from pipeline.errors import ConfigError
 from pipeline.kinematics import Boom
-from pipeline.solvers.base import JointSpace, Solver, Targets, tool_transform
+from pipeline.solvers.base import JointSpace, Solver, Targets, require, tool_transform
 
 
 @dataclass(frozen=True)
@@ -52,17 +51,14 @@ class GAParams:
     seed: int = 0
 
     def __post_init__(self):
-        checks = {
+        require({
             "population >= 4 (even)": self.population >= 4 and self.population % 2 == 0,
             "generations >= 1": self.generations >= 1,
             "1 <= bits <= 30": 1 <= self.bits <= 30,
             "probabilities in [0, 1]": all(0 <= x <= 1 for x in (self.crossover, self.mutation, self.inversion)),
             "0 < rank_pressure < 1": 0 < self.rank_pressure < 1,
             "grid >= 2": self.grid >= 2,
-        }
-        failed = [k for k, ok in checks.items() if not ok]
-        if failed:
-            raise ConfigError(f"GA parameters: {', '.join(failed)} required; got {self}")
+        }, "GA parameters", self)
 
 
 class GeneticIK(Solver):

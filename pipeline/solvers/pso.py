@@ -25,7 +25,7 @@ import torch
 
 from pipeline.errors import ConfigError
 from pipeline.kinematics import Boom
-from pipeline.solvers.base import JointSpace, Solver, Targets, tool_transform
+from pipeline.solvers.base import JointSpace, Solver, Targets, require, tool_transform
 
 
 @dataclass(frozen=True)
@@ -51,17 +51,14 @@ class PSOParams:
     seed: int = 0
 
     def __post_init__(self):
-        checks = {
+        require({
             "population >= 2": self.population >= 2,
             "iterations >= 1": self.iterations >= 1,
             "0 <= w_min <= w_max": 0 <= self.w_min <= self.w_max,
             "v_max > 0": self.v_max_revolute > 0 and self.v_max_prismatic > 0,
             "0 <= p0 <= 1 and 0 <= pr <= 1": 0 <= self.p0 <= 1 and 0 <= self.pr <= 1,
             "0 < elite_frac <= 1": 0 < self.elite_frac <= 1,
-        }
-        failed = [k for k, ok in checks.items() if not ok]
-        if failed:
-            raise ConfigError(f"PSO parameters: {', '.join(failed)} required; got {self}")
+        }, "PSO parameters", self)
 
 
 PRESETS = {
