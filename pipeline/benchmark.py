@@ -25,14 +25,14 @@ import pandas as pd  # noqa: E402
 import torch  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
-from pipeline import tracking  # noqa: E402
-from pipeline.atomic import atomic_write, write_json, write_text  # noqa: E402
-from pipeline.config import project_path  # noqa: E402
-from pipeline.errors import ConfigError, InputError  # noqa: E402
-from pipeline.metrics import solution_table, summarize  # noqa: E402
-from pipeline.setup import build_safety  # noqa: E402
+from pipeline.core.build import build_safety  # noqa: E402
+from pipeline.core.config import project_path  # noqa: E402
+from pipeline.core.errors import ConfigError, InputError  # noqa: E402
+from pipeline.core.io import atomic_write, write_json, write_text  # noqa: E402
+from pipeline.data.tables import read_poses  # noqa: E402
+from pipeline.evaluation.metrics import solution_table, summarize  # noqa: E402
 from pipeline.solvers import HoleTargets, Solver, build_solver  # noqa: E402
-from pipeline.tables import read_poses  # noqa: E402
+from pipeline.tracking import runs as tracking  # noqa: E402
 
 log = logging.getLogger(__name__)
 

@@ -20,15 +20,15 @@ import pandas as pd
 import torch
 from omegaconf import DictConfig
 
-from pipeline.atomic import atomic_write, write_json
-from pipeline.collision import SafetyModel
-from pipeline.config import project_path
-from pipeline.errors import InputError
-from pipeline.metrics import collision_table, solution_table, summarize
-from pipeline.models import IKNet, load_checkpoint
-from pipeline.plots import face_projection, method_comparison, training_curves
-from pipeline.setup import build_safety
-from pipeline.tables import holes_frame, joints_frame, read_poses, write_csv, write_parquet
+from pipeline.core.build import build_safety
+from pipeline.core.config import project_path
+from pipeline.core.errors import InputError
+from pipeline.core.io import atomic_write, write_json
+from pipeline.data.tables import holes_frame, joints_frame, read_poses, write_csv, write_parquet
+from pipeline.evaluation.metrics import collision_table, solution_table, summarize
+from pipeline.evaluation.plots import face_projection, method_comparison, training_curves
+from pipeline.geometry.collision import SafetyModel
+from pipeline.learning.models import IKNet, load_checkpoint
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +71,7 @@ def evaluate_method(
 
 
 def run(cfg: DictConfig) -> dict:
-    from pipeline import tracking
+    from pipeline.tracking import runs as tracking
 
     safety = build_safety(cfg.boom, cfg.tunnel, cfg.safety)
     data = project_path(cfg.paths.data)

@@ -17,13 +17,13 @@ import hydra
 import pandas as pd
 from omegaconf import DictConfig
 
-from pipeline.atomic import write_json
-from pipeline.collision import KINDS, SafetyModel
-from pipeline.config import as_dict, project_path
-from pipeline.errors import ConfigError
-from pipeline.holes import HoleSampling, sample_holes, sample_joints
-from pipeline.setup import build_safety
-from pipeline.tables import holes_frame, joints_frame, write_parquet
+from pipeline.core.build import build_safety
+from pipeline.core.config import as_dict, project_path
+from pipeline.core.errors import ConfigError
+from pipeline.core.io import write_json
+from pipeline.data.holes import HoleSampling, sample_holes, sample_joints
+from pipeline.data.tables import holes_frame, joints_frame, write_parquet
+from pipeline.geometry.collision import KINDS, SafetyModel
 
 log = logging.getLogger(__name__)
 

@@ -23,17 +23,17 @@ import pandas as pd
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from pipeline import tracking
-from pipeline.anchors import PAPER_002
-from pipeline.atomic import atomic_write, write_text
 from pipeline.benchmark import markdown_table
-from pipeline.config import project_path
-from pipeline.setup import load_boom
+from pipeline.core.build import load_boom
+from pipeline.core.config import project_path
+from pipeline.core.io import atomic_write, write_text
+from pipeline.data.tables import read_poses
+from pipeline.evaluation.paper_numbers import PAPER_002
 from pipeline.solvers.base import FrameTargets, HoleTargets, JointSpace, tool_transform
 from pipeline.solvers.ga import GAParams, GeneticIK
 from pipeline.solvers.pso import ParticleSwarm, params_for
 from pipeline.solvers.rbf import RBFSolver
-from pipeline.tables import read_poses
+from pipeline.tracking import runs as tracking
 
 log = logging.getLogger(__name__)
 

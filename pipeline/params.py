@@ -14,8 +14,8 @@ import sys
 
 from omegaconf import OmegaConf
 
-from pipeline.atomic import write_text
-from pipeline.config import PROJECT_ROOT, compose
+from pipeline.core.config import PROJECT_ROOT, compose
+from pipeline.core.io import write_text
 
 
 def composed_yaml(overrides: list[str] | None = None) -> str:

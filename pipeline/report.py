@@ -15,11 +15,11 @@ import hydra
 import pandas as pd
 from omegaconf import DictConfig
 
-from pipeline.anchors import PAPER000, PAPER000_TABLE3
-from pipeline.atomic import write_text
-from pipeline.collision import KINDS
-from pipeline.config import project_path
-from pipeline.errors import InputError
+from pipeline.core.config import project_path
+from pipeline.core.errors import InputError
+from pipeline.core.io import write_text
+from pipeline.evaluation.paper_numbers import PAPER000, PAPER000_TABLE3
+from pipeline.geometry.collision import KINDS
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +60,7 @@ def render(metrics: dict, collisions: pd.DataFrame, figures: list[str]) -> str:
 
 
 def run(cfg: DictConfig) -> str:
-    from pipeline import tracking
+    from pipeline.tracking import runs as tracking
 
     data = project_path(cfg.paths.data)
     ev = data / "eval"

@@ -3,7 +3,7 @@
     python -m pipeline.train method=cuikm
     python -m pipeline.train -m method=cuikm method.mu=0.1,1,10,100     # Hydra multirun
 
-Writes ``paths.data/models/<method>.pt`` (loads alone with ``pipeline.models.load_checkpoint``)
+Writes ``paths.data/models/<method>.pt`` (loads alone with ``pipeline.learning.models.load_checkpoint``)
 and ``<method>_history.csv`` (the held-out training curves).
 """
 
@@ -18,17 +18,17 @@ import pandas as pd
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from pipeline.atomic import write_json
-from pipeline.collision import SafetyDistances
-from pipeline.config import as_dict, project_path
-from pipeline.device import resolve_device
-from pipeline.errors import ConfigError
-from pipeline.holes import HoleSampling, sample_holes
-from pipeline.metrics import solution_table, summarize
-from pipeline.models import build_model, save_checkpoint
-from pipeline.setup import build_safety
-from pipeline.tables import read_poses, write_csv
-from pipeline.training import Objective, dataset_batches, fresh_hole_batches, train
+from pipeline.core.build import build_safety
+from pipeline.core.config import as_dict, project_path
+from pipeline.core.device import resolve_device
+from pipeline.core.errors import ConfigError
+from pipeline.core.io import write_json
+from pipeline.data.holes import HoleSampling, sample_holes
+from pipeline.data.tables import read_poses, write_csv
+from pipeline.evaluation.metrics import solution_table, summarize
+from pipeline.geometry.collision import SafetyDistances
+from pipeline.learning.models import build_model, save_checkpoint
+from pipeline.learning.training import Objective, dataset_batches, fresh_hole_batches, train
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +55,7 @@ def sampling_from(holes: DictConfig) -> HoleSampling:
 
 def run(cfg: DictConfig) -> dict:
     """Train the configured method; returns the final held-out metrics and the checkpoint path."""
-    from pipeline import sweep
+    from pipeline.tracking import sweep
 
     if cfg.train.threads:
         torch.set_num_threads(int(cfg.train.threads))
@@ -94,7 +94,7 @@ def run(cfg: DictConfig) -> dict:
     run_cfg.pop("baselines", None)
     tracking_on = bool(cfg.tracking.enabled)
     if tracking_on:  # imported only when used: a run without tracking needs no MLflow
-        from pipeline import tracking
+        from pipeline.tracking import runs as tracking
 
         tracking.setup(cfg.tracking.uri, cfg.tracking.experiment, cfg.tracking.artifact_root)
     t0 = time.perf_counter()

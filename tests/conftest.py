@@ -1,7 +1,7 @@
 import pytest
 
-from pipeline.config import load_group_file
-from pipeline.setup import build_safety, load_boom
+from pipeline.core.build import build_safety, load_boom
+from pipeline.core.config import load_group_file
 
 
 @pytest.fixture(scope="session")

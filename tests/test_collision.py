@@ -7,10 +7,10 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.collision import KINDS, SafetyDistances, segment_distance
-from pipeline.errors import ConfigError
-from pipeline.setup import build_safety
-from pipeline.tunnel import Horseshoe
+from pipeline.core.build import build_safety
+from pipeline.core.errors import ConfigError
+from pipeline.geometry.collision import KINDS, SafetyDistances, segment_distance
+from pipeline.geometry.tunnel import Horseshoe
 
 r = math.radians
 D = torch.float64
@@ -124,7 +124,7 @@ def test_boom_pushed_into_floor_is_ground_collision(safety):
 
 
 def test_more_sample_points_do_not_change_the_answer(jumbo8, safety):
-    from pipeline.holes import sample_joints
+    from pipeline.data.holes import sample_joints
 
     q = sample_joints(4000, jumbo8, seed=11)
     fine = build_safety(jumbo8, {"width": 5.0, "wall_height": 3.2},
@@ -151,7 +151,7 @@ def test_penalty_zero_exactly_where_check_passes(safety, fractions):
 
 
 def test_penalty_gradient_finite_everywhere(jumbo8, safety):
-    from pipeline.holes import sample_joints
+    from pipeline.data.holes import sample_joints
 
     q = sample_joints(2000, jumbo8, seed=5)
     special = torch.tensor(

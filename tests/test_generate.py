@@ -10,12 +10,12 @@ import pandas as pd
 import pytest
 import torch
 
-from pipeline.collision import KINDS
-from pipeline.config import PROJECT_ROOT, compose
-from pipeline.errors import ConfigError
+from pipeline.core.config import PROJECT_ROOT, compose
+from pipeline.core.errors import ConfigError
+from pipeline.data.tables import POSE_COLUMNS
 from pipeline.generate import run
-from pipeline.tables import POSE_COLUMNS
-from pipeline.tunnel import Horseshoe
+from pipeline.geometry.collision import KINDS
+from pipeline.geometry.tunnel import Horseshoe
 
 SMALL = ["holes.unsup.size=1500", "holes.sup.size=800", "holes.test.size=300"]
 

@@ -6,10 +6,10 @@ import math
 import pytest
 import torch
 
-from pipeline.config import load_group_file
-from pipeline.errors import ConfigError, InputError
-from pipeline.kinematics import Boom, pose_errors
-from pipeline.setup import load_boom
+from pipeline.core.build import load_boom
+from pipeline.core.config import load_group_file
+from pipeline.core.errors import ConfigError, InputError
+from pipeline.geometry.kinematics import Boom, pose_errors
 
 r = math.radians
 

@@ -8,13 +8,13 @@ import torch
 from mlflow.tracking import MlflowClient
 
 from pipeline import benchmark, generate, paper_baselines, train
-from pipeline.config import compose
-from pipeline.errors import ConfigError, InputError
-from pipeline.setup import load_boom
+from pipeline.core.build import load_boom
+from pipeline.core.config import compose
+from pipeline.core.errors import ConfigError, InputError
 from pipeline.solvers import build_solver
 from pipeline.solvers.base import FrameTargets, HoleTargets, JointSpace, rotation_angle, tool_transform
 from pipeline.solvers.ga import GAParams, GeneticIK
-from pipeline.solvers.newton import LevenbergMarquardt
+from pipeline.solvers.nm import LevenbergMarquardt
 from pipeline.solvers.pso import ParticleSwarm, params_for
 from pipeline.solvers.rbf import ExactRBF, RBFSolver, align, rpy
 
@@ -41,7 +41,7 @@ def test_rotation_angle_matches_a_known_rotation():
 
 
 def test_hole_errors_agree_with_the_pose_error_metric(jumbo8):
-    from pipeline.kinematics import pose_errors
+    from pipeline.geometry.kinematics import pose_errors
 
     q, q2 = random_q(jumbo8, 50, 0), random_q(jumbo8, 50, 1)
     targets = HoleTargets(jumbo8.pose6(q2), jumbo8.preview_depth)

@@ -12,9 +12,9 @@ import pytest
 import yaml
 from mlflow.tracking import MlflowClient
 
-from pipeline.config import PROJECT_ROOT
+from pipeline.core.config import PROJECT_ROOT
 from pipeline.params import composed_yaml
-from pipeline.sweep import pareto_front, summary_table
+from pipeline.tracking.sweep import pareto_front, summary_table
 
 TINY = ["experiment=quick", "train.steps=20", "train.eval_every=10", "model.width=32", "train.log_model=false",
         "holes.unsup.size=500", "holes.sup.size=500", "holes.test.size=50", "train.val_size=100"]

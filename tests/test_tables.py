@@ -5,8 +5,8 @@ import math
 import pandas as pd
 import pytest
 
-from pipeline.errors import InputError
-from pipeline.tables import POSE_COLUMNS, read_poses, write_parquet
+from pipeline.core.errors import InputError
+from pipeline.data.tables import POSE_COLUMNS, read_poses, write_parquet
 
 
 def _plan():

@@ -10,13 +10,13 @@ import torch
 from mlflow.tracking import MlflowClient
 
 from pipeline import evaluate, generate, train
-from pipeline.collision import KINDS
-from pipeline.config import compose
-from pipeline.errors import ConfigError, InputError
-from pipeline.holes import HoleSampling, sample_holes, sample_joints
-from pipeline.metrics import solution_table, summarize
-from pipeline.models import build_model, load_checkpoint
-from pipeline.training import Objective, dataset_batches, loss_terms
+from pipeline.core.config import compose
+from pipeline.core.errors import ConfigError, InputError
+from pipeline.data.holes import HoleSampling, sample_holes, sample_joints
+from pipeline.evaluation.metrics import solution_table, summarize
+from pipeline.geometry.collision import KINDS
+from pipeline.learning.models import build_model, load_checkpoint
+from pipeline.learning.training import Objective, dataset_batches, loss_terms
 
 METHODS = ["sikm", "uikm", "cuikm"]
 
@@ -176,7 +176,7 @@ def test_bad_method_config_is_named(tmp_path):
     with pytest.raises(ConfigError, match=r"method.mu = -1"):
         train.objective_from(compose(["method.mu=-1"]).method)
     with pytest.raises(ConfigError, match=r"method.pose_loss = 'l3'"):
-        from pipeline.losses import pose_loss
+        from pipeline.learning.losses import pose_loss
 
         pose_loss(torch.zeros(2, 6), torch.zeros(2, 6), "l3")
 

@@ -6,11 +6,11 @@ from __future__ import annotations
 from collections.abc import Mapping
 from pathlib import Path
 
-from pipeline.errors import ConfigError
-from pipeline.kinematics import Boom
+from pipeline.core.errors import ConfigError
+from pipeline.geometry.kinematics import Boom
 from pipeline.solvers.base import FrameTargets, HoleTargets, NetworkSolver, Solver, SolveResult
 from pipeline.solvers.ga import GAParams, GeneticIK
-from pipeline.solvers.newton import LevenbergMarquardt
+from pipeline.solvers.nm import LevenbergMarquardt
 from pipeline.solvers.pso import ParticleSwarm, params_for
 from pipeline.solvers.rbf import RBFSolver
 
@@ -30,7 +30,7 @@ def build_solver(name: str, spec: Mapping, boom: Boom, models_dir: Path, specs: 
         raise ConfigError(f"benchmark.solvers.{name}.kind = {kind!r}: expected one of {list(KINDS)}")
     try:
         if kind == "network":
-            from pipeline.models import load_checkpoint
+            from pipeline.learning.models import load_checkpoint
 
             path = Path(models_dir) / f"{spec.pop('network', name)}.pt"
             model, _ = load_checkpoint(path)

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import torch
 
-from pipeline.errors import ConfigError, InputError
-from pipeline.kinematics import Boom
+from pipeline.core.errors import ConfigError, InputError
+from pipeline.geometry.kinematics import Boom
 
 
 def tool_transform(boom: Boom, q: torch.Tensor) -> torch.Tensor:

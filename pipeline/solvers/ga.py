@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import torch
 
-from pipeline.kinematics import Boom
+from pipeline.geometry.kinematics import Boom
 from pipeline.solvers.base import JointSpace, Solver, Targets, require, tool_transform
 
 

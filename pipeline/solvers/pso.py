@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import torch
 
-from pipeline.errors import ConfigError
-from pipeline.kinematics import Boom
+from pipeline.core.errors import ConfigError
+from pipeline.geometry.kinematics import Boom
 from pipeline.solvers.base import JointSpace, Solver, Targets, require, tool_transform
 
 

@@ -19,8 +19,8 @@ from collections.abc import Mapping
 
 import torch
 
-from pipeline.errors import ConfigError, InputError
-from pipeline.kinematics import Boom
+from pipeline.core.errors import ConfigError, InputError
+from pipeline.geometry.kinematics import Boom
 from pipeline.solvers.base import FrameTargets, HoleTargets, JointSpace, Solver, Targets, tool_transform
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import mlflow
 from mlflow.tracking import MlflowClient
 
-from pipeline.config import main_root
+from pipeline.core.config import main_root
 
 log = logging.getLogger(__name__)
 
@@ -110,7 +110,7 @@ def log_artifact(path: str | Path, folder: str | None = None) -> None:
 def log_training_figure(history, method: str) -> None:
     import matplotlib.pyplot as plt
 
-    from pipeline.plots import training_curves
+    from pipeline.evaluation.plots import training_curves
 
     fig = training_curves({method: history})
     mlflow.log_figure(fig, f"figures/training_{method}.png")

@@ -9,11 +9,11 @@ from dataclasses import dataclass
 import torch
 from tqdm.auto import tqdm
 
-from pipeline.collision import SafetyModel
-from pipeline.holes import HoleSampling, sample_holes
-from pipeline.kinematics import Boom, pose_errors
-from pipeline.losses import joint_loss, pose_loss, safety_terms, total_loss
-from pipeline.models import IKNet
+from pipeline.data.holes import HoleSampling, sample_holes
+from pipeline.geometry.collision import SafetyModel
+from pipeline.geometry.kinematics import Boom, pose_errors
+from pipeline.learning.losses import joint_loss, pose_loss, safety_terms, total_loss
+from pipeline.learning.models import IKNet
 
 
 @dataclass(frozen=True)

@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import torch
 
-from pipeline.errors import ConfigError
-from pipeline.kinematics import Boom, Capsule
-from pipeline.tunnel import SURFACES, Horseshoe, safe_norm
+from pipeline.core.errors import ConfigError
+from pipeline.geometry.kinematics import Boom, Capsule
+from pipeline.geometry.tunnel import SURFACES, Horseshoe, safe_norm
 
 KINDS = ("self", *SURFACES)
 

@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 import torch
 
-from pipeline.collision import SafetyModel
-from pipeline.errors import ConfigError
-from pipeline.tunnel import Horseshoe
+from pipeline.core.errors import ConfigError
+from pipeline.geometry.collision import SafetyModel
+from pipeline.geometry.tunnel import Horseshoe
 
 DTYPE = torch.float64
 

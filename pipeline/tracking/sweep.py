@@ -104,7 +104,7 @@ def summary_table(runs: pd.DataFrame) -> pd.DataFrame:
 
 
 def tradeoff_figure(df: pd.DataFrame):
-    from pipeline.plots import plt
+    from pipeline.evaluation.plots import plt
 
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
     ax.scatter(df["val_collision_rate"] * 100, df["val_hole_mm"], c="tab:blue", label="job")
@@ -128,7 +128,7 @@ class MlflowSweepCallback(Callback):
             return
         from mlflow.tracking import MlflowClient
 
-        from pipeline import tracking
+        from pipeline.tracking import runs as tracking
 
         exp_id = tracking.setup(config.tracking.uri, config.tracking.experiment, config.tracking.artifact_root)
         folder = Path(config.hydra.sweep.dir)
@@ -145,7 +145,7 @@ class MlflowSweepCallback(Callback):
         if config.tracking.enabled and parent:
             import mlflow
 
-            from pipeline import tracking
+            from pipeline.tracking import runs as tracking
 
             tracking.setup(config.tracking.uri, config.tracking.experiment, config.tracking.artifact_root)
             exp_id = mlflow.get_run(parent).info.experiment_id
@@ -165,7 +165,7 @@ class MlflowSweepCallback(Callback):
                 mlflow.log_figure(fig, "sweep/tradeoff.png")
                 mlflow.log_metrics({"jobs": len(table), "jobs_finished": int((table["status"] == "FINISHED").sum()),
                                     "pareto_points": int(table["pareto"].sum())})
-        from pipeline.plots import plt
+        from pipeline.evaluation.plots import plt
 
         plt.close(fig)
         log.info("sweep summary (%d jobs): %s", len(table), folder / "summary.csv")

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import torch
 
-from pipeline.errors import ConfigError, InputError
+from pipeline.core.errors import ConfigError, InputError
 
 CONVENTIONS = ("modified", "standard")
 JOINT_PARAMS = ("theta", "d", "a")

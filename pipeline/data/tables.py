@@ -9,8 +9,8 @@ import numpy as np
 import pandas as pd
 import torch
 
-from pipeline.atomic import atomic_write
-from pipeline.errors import InputError
+from pipeline.core.errors import InputError
+from pipeline.core.io import atomic_write
 
 POSE_COLUMNS = ["collar_x", "collar_y", "collar_z", "preview_x", "preview_y", "preview_z"]
 

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from pipeline.collision import SafetyDistances, SafetyModel
-from pipeline.config import as_dict, load_group_file
-from pipeline.errors import ConfigError
-from pipeline.kinematics import Boom
-from pipeline.tunnel import Horseshoe
+from pipeline.core.config import as_dict, load_group_file
+from pipeline.core.errors import ConfigError
+from pipeline.geometry.collision import SafetyDistances, SafetyModel
+from pipeline.geometry.kinematics import Boom
+from pipeline.geometry.tunnel import Horseshoe
 
 
 def load_boom(boom) -> Boom:

@@ -16,8 +16,8 @@ from collections.abc import Mapping, Sequence
 
 import torch
 
-from pipeline.errors import ConfigError
-from pipeline.kinematics import Boom
+from pipeline.core.errors import ConfigError
+from pipeline.geometry.kinematics import Boom
 from pipeline.solvers.base import JointSpace, Solver, Targets, tool_transform
 
 

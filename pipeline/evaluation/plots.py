@@ -10,8 +10,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from pipeline.collision import KINDS  # noqa: E402
-from pipeline.tunnel import Horseshoe  # noqa: E402
+from pipeline.geometry.collision import KINDS  # noqa: E402
+from pipeline.geometry.tunnel import Horseshoe  # noqa: E402
 
 
 def training_curves(histories: dict[str, pd.DataFrame]):

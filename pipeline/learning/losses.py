@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import torch
 
-from pipeline.collision import KINDS
-from pipeline.errors import ConfigError
+from pipeline.core.errors import ConfigError
+from pipeline.geometry.collision import KINDS
 
 POSE_LOSSES = ("mse", "norm")
 

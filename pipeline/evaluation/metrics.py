@@ -6,8 +6,8 @@ import numpy as np
 import pandas as pd
 import torch
 
-from pipeline.collision import KINDS, SafetyModel
-from pipeline.kinematics import pose_errors
+from pipeline.geometry.collision import KINDS, SafetyModel
+from pipeline.geometry.kinematics import pose_errors
 
 ERROR_COLUMNS = {"start": "start_mm", "preview": "preview_mm", "hole": "hole_mm"}
 

@@ -1,0 +1,1 @@
+"""Hole sets and tables on disk: sampling, validation, drill plans."""

@@ -1,0 +1,1 @@
+"""Scoring IK solutions: errors, collision tables, figures, the papers' reported numbers."""

@@ -1,0 +1,1 @@
+"""The IK networks of paper 000: model, losses, training loop."""

@@ -1,0 +1,94 @@
+"""The IK network of paper 000 sect. 3 and its stand-alone checkpoint.
+
+An MLP maps a normalised 6-D hole pose to joint values squashed into their ranges
+(``lo + (hi - lo) * sigmoid(z)``), so joint limits hold for every input. The
+normalisation and the limits are buffers of the module: a saved network needs
+nothing else to run.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from pipeline.core.errors import ConfigError, InputError
+from pipeline.core.io import atomic_write
+from pipeline.geometry.kinematics import Boom
+
+ACTIVATIONS = {"gelu": nn.GELU, "relu": nn.ReLU, "silu": nn.SiLU, "tanh": nn.Tanh}
+
+
+class IKNet(nn.Module):
+    def __init__(
+        self,
+        lower: torch.Tensor,
+        upper: torch.Tensor,
+        in_mean: torch.Tensor,
+        in_std: torch.Tensor,
+        width: int = 512,
+        depth: int = 4,
+        activation: str = "gelu",
+    ):
+        super().__init__()
+        if activation not in ACTIVATIONS:
+            raise ConfigError(f"model.activation = {activation!r}; expected one of {sorted(ACTIVATIONS)}")
+        if width < 1 or depth < 1:
+            raise ConfigError(f"model.width = {width!r}, model.depth = {depth!r}: both must be >= 1")
+        self.n_in, self.n_out = int(in_mean.numel()), int(lower.numel())
+        self.hparams = {"width": width, "depth": depth, "activation": activation}
+        layers, n = [], self.n_in
+        for _ in range(depth):
+            layers += [nn.Linear(n, width), ACTIVATIONS[activation]()]
+            n = width
+        layers.append(nn.Linear(n, self.n_out))
+        self.net = nn.Sequential(*layers)
+        f32 = torch.float32
+        self.register_buffer("lower", lower.detach().to(f32).clone())
+        self.register_buffer("span", (upper - lower).detach().to(f32).clone())
+        self.register_buffer("in_mean", in_mean.detach().to(f32).clone())
+        self.register_buffer("in_std", in_std.detach().to(f32).clamp_min(1e-6).clone())
+
+    def unit_joints(self, pose: torch.Tensor) -> torch.Tensor:
+        """Joints as fractions of their ranges, in (0, 1)."""
+        if pose.shape[-1] != self.n_in:
+            raise InputError(f"network input: expected {self.n_in} pose values per hole, got shape {tuple(pose.shape)}")
+        x = (pose.to(self.in_mean.dtype) - self.in_mean) / self.in_std
+        return torch.sigmoid(self.net(x))
+
+    def forward(self, pose: torch.Tensor) -> torch.Tensor:
+        return self.lower + self.span * self.unit_joints(pose)
+
+
+def build_model(boom: Boom, in_mean, in_std, width: int, depth: int, activation: str) -> IKNet:
+    lo, hi = boom.limits(torch.float32)
+    return IKNet(lo, hi, torch.as_tensor(in_mean), torch.as_tensor(in_std), width, depth, activation)
+
+
+def save_checkpoint(path: Path, model: IKNet, boom_cfg: dict, extra: dict) -> None:
+    """Everything needed to load the network alone: weights, shape, boom, training facts."""
+    payload = {
+        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+        "hparams": model.hparams,
+        "n_in": model.n_in,
+        "n_out": model.n_out,
+        "boom": boom_cfg,
+        **extra,
+    }
+    atomic_write(path, lambda tmp: torch.save(payload, tmp))
+
+
+def load_checkpoint(path: str | Path, map_location="cpu") -> tuple[IKNet, dict]:
+    """The network (eval mode) and the checkpoint's metadata (boom config, method, ...)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such model checkpoint (train it with python -m pipeline.train)")
+    payload = torch.load(path, map_location=map_location, weights_only=False)
+    sd = payload["state_dict"]
+    model = IKNet(
+        sd["lower"], sd["lower"] + sd["span"], sd["in_mean"], sd["in_std"], **payload["hparams"]
+    )
+    model.load_state_dict(sd)
+    model.eval()
+    return model, {k: v for k, v in payload.items() if k != "state_dict"}

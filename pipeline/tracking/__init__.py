@@ -1,0 +1,1 @@
+"""MLflow: the store, one run per stage, sweeps as parent runs."""
