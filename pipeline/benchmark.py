@@ -11,28 +11,29 @@ them to MLflow (run ``benchmark``). Times are wall clock on this machine with
 from __future__ import annotations
 
 import logging
+import math
 import platform
 import statistics
 import time
-from pathlib import Path
+from dataclasses import dataclass, field
 
 import hydra
-import matplotlib
+import pandas as pd
+import torch
+from omegaconf import DictConfig, OmegaConf
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import pandas as pd  # noqa: E402
-import torch  # noqa: E402
-from omegaconf import DictConfig, OmegaConf  # noqa: E402
-
-from pipeline.core.build import build_safety  # noqa: E402
-from pipeline.core.config import project_path  # noqa: E402
-from pipeline.core.errors import ConfigError, InputError  # noqa: E402
-from pipeline.core.io import atomic_write, write_json, write_text  # noqa: E402
-from pipeline.data.tables import read_poses  # noqa: E402
-from pipeline.evaluation.metrics import solution_table, summarize  # noqa: E402
-from pipeline.solvers import HoleTargets, Solver, build_solver  # noqa: E402
-from pipeline.tracking import runs as tracking  # noqa: E402
+from pipeline.core.build import build_safety
+from pipeline.core.config import project_path
+from pipeline.core.device import configure_process
+from pipeline.core.errors import ConfigError
+from pipeline.core.io import save_figure, write_csv, write_json, write_text
+from pipeline.core.settings import parse, rule
+from pipeline.data.hole_sets import read_hole_poses
+from pipeline.evaluation.markdown import markdown_table
+from pipeline.evaluation.metrics import solution_table, summarize
+from pipeline.evaluation.plots import error_vs_time
+from pipeline.solvers import HoleTargets, Solver, build_solver
+from pipeline.tracking.runs import TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
 
@@ -41,11 +42,19 @@ COLUMNS = ["method", "holes", "hole_mm_mean", "hole_mm_p95", "hole_mm_max", "sol
            "iterations_mean", "setup_s"]
 
 
-def load_holes(holes_dir: Path, group: int, n: int) -> HoleTargets:
-    path = holes_dir / f"test_group_{group}.parquet"
-    if not path.exists():
-        raise InputError(f"{path} is missing: run `python -m pipeline.generate` (or `dvc repro`) first")
-    _, pose = read_poses(path)
+@dataclass(frozen=True)
+class BenchmarkSettings:
+    """The ``benchmark`` group's scalar settings (solvers are checked by ``build_solver``)."""
+
+    group: int = field(metadata=rule(ge=1))
+    holes: int = field(metadata=rule(ge=1))
+    single: int = field(default=5, metadata=rule(ge=0))
+    threads: int = field(default=2, metadata=rule(ge=1))
+    methods: list[str] = field(default_factory=list)
+
+
+def load_holes(holes_dir, group: int, n: int) -> torch.Tensor:
+    _, pose = read_hole_poses(holes_dir, f"test_group_{group}.parquet")
     if not 1 <= n <= len(pose):
         raise ConfigError(f"benchmark.holes = {n}: test group {group} has {len(pose)} holes")
     return pose[:n].double()
@@ -64,20 +73,12 @@ def measure(solver: Solver, pose: torch.Tensor, depth: float, safety, single: in
     row = summarize(solution_table(pose, result.q, safety))
     return {
         "holes": len(targets),
-        "hole_mm_mean": row["hole_mm_mean"], "hole_mm_p95": row["hole_mm_p95"], "hole_mm_max": row["hole_mm_max"],
-        "solved_1mm_share": row["solved_1mm_share"], "collision_rate_paper": row["collision_rate_paper"],
-        "any_violation_share": row["any_violation_share"],
+        **{k: row[k] for k in ("hole_mm_mean", "hole_mm_p95", "hole_mm_max", "solved_1mm_share",
+                               "collision_rate_paper", "any_violation_share")},
         "batch_ms_per_hole": 1000 * statistics.median(batch_s) / len(targets),
         "single_ms_per_hole": 1000 * statistics.median(latencies) if latencies else float("nan"),
         "iterations_mean": float(result.iterations.double().mean()),
     }, result.q
-
-
-def markdown_table(df: pd.DataFrame, digits: int = 4) -> str:
-    """A GitHub Markdown table; floats to ``digits`` significant figures."""
-    cell = lambda v: f"{v:.{digits}g}" if isinstance(v, float) else str(v)  # noqa: E731
-    head = "| " + " | ".join(map(str, df.columns)) + " |\n|" + "---|" * len(df.columns) + "\n"
-    return head + "".join("| " + " | ".join(cell(v) for v in row) + " |\n" for row in df.itertuples(index=False))
 
 
 def markdown(df: pd.DataFrame) -> str:
@@ -93,78 +94,64 @@ def markdown(df: pd.DataFrame) -> str:
     return markdown_table(fmt)
 
 
-def error_vs_time(df: pd.DataFrame):
-    fig, ax = plt.subplots(figsize=(6.5, 4.5))
-    ax.scatter(df["batch_ms_per_hole"], df["hole_mm_mean"], c=100 * df["collision_rate_paper"], cmap="viridis_r",
-               s=60, edgecolor="k")
-    for r in df.itertuples():
-        ax.annotate(r.method, (r.batch_ms_per_hole, r.hole_mm_mean), textcoords="offset points", xytext=(4, 4),
-                    fontsize=8)
-    ax.set(xscale="log", yscale="log", xlabel="time per hole, batched (ms)", ylabel="mean hole-seeking error (mm)",
-           title="IK methods on the same holes (colour: collision rate %)")
-    fig.colorbar(ax.collections[0], ax=ax, label="collision rate (%)")
-    fig.tight_layout()
-    return fig
+def build_solvers(methods: list[str], specs: dict, boom, models_dir) -> dict[str, tuple[Solver, float]]:
+    """Every solver built (networks loaded, RBF fitted) before the first solve: fail early."""
+    unknown = [m for m in methods if m not in specs]
+    if unknown:
+        raise ConfigError(f"benchmark.methods: {unknown} have no entry under benchmark.solvers ({sorted(specs)})")
+    solvers = {}
+    for m in methods:
+        start = time.perf_counter()
+        solver = build_solver(m, specs[m], boom, models_dir, specs)
+        if hasattr(solver, "fit"):
+            solver.fit()
+        solvers[m] = (solver, time.perf_counter() - start)
+    return solvers
 
 
 def run(cfg: DictConfig) -> pd.DataFrame:
-    bcfg = cfg.benchmark
-    torch.set_num_threads(int(bcfg.threads))
-    data = project_path(cfg.paths.data)
-    out = data / "benchmark"
+    settings = parse(BenchmarkSettings, cfg.benchmark, "benchmark")
+    tracking = TrackingSettings.from_config(cfg.tracking)
+    data, out = project_path(cfg.paths.data), project_path(cfg.paths.data) / "benchmark"
     safety = build_safety(cfg.boom, cfg.tunnel, cfg.safety)
-    boom = safety.boom
-    specs = OmegaConf.to_container(bcfg.solvers, resolve=True)
-    unknown = [m for m in bcfg.methods if m not in specs]
-    if unknown:
-        raise ConfigError(f"benchmark.methods: {unknown} have no entry under benchmark.solvers ({sorted(specs)})")
-    pose = load_holes(data / "holes", int(bcfg.group), int(bcfg.holes))
-    solvers = {}
-    for m in bcfg.methods:  # build (and load) everything before the first solve: fail early
-        start = time.perf_counter()
-        solvers[m] = (build_solver(m, specs[m], boom, data / "models", specs), time.perf_counter() - start)
-    rows = []
-    for m, (solver, setup_s) in solvers.items():
-        if hasattr(solver, "fit"):
-            start = time.perf_counter()
-            solver.fit()
-            setup_s += time.perf_counter() - start
-        row, _ = measure(solver, pose, boom.preview_depth, safety, int(bcfg.single))
-        rows.append({"method": m, **row, "setup_s": setup_s})
-        log.info("%-10s mean %.4g mm, p95 %.4g mm, solved<=1mm %.1f %%, collisions %.1f %%, %.4g ms/hole batched",
-                 m, row["hole_mm_mean"], row["hole_mm_p95"], 100 * row["solved_1mm_share"],
-                 100 * row["collision_rate_paper"], row["batch_ms_per_hole"])
-    df = pd.DataFrame(rows, columns=COLUMNS)
+    pose = load_holes(data / "holes", settings.group, settings.holes)
+    solvers = build_solvers(settings.methods, OmegaConf.to_container(cfg.benchmark.solvers, resolve=True),
+                            safety.boom, data / "models")
     machine = {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-               "torch": torch.__version__, "threads": torch.get_num_threads(), "group": int(bcfg.group),
-               "holes": int(bcfg.holes)}
-    atomic_write(out / "results.csv", lambda tmp: df.to_csv(tmp, index=False))
-    # keyed by method so `dvc metrics show` / `dvc exp show` list one column per method and figure
-    write_json({"machine": machine, **{r["method"]: {k: v for k, v in r.items() if k != "method"} for r in rows}},
-               out / "results.json")
-    write_text(f"Test group {machine['group']}, first {machine['holes']} holes; {machine['processor']}, "
-               f"{machine['threads']} torch threads, torch {machine['torch']}.\n\n" + markdown(df),
-               out / "results.md")
-    fig = error_vs_time(df)
-    atomic_write(out / "figures" / "error_vs_time.png", lambda tmp: fig.savefig(tmp, dpi=120, format="png"))
-    if cfg.tracking.enabled:
-        import mlflow
-
-        tracking.setup(cfg.tracking.uri, cfg.tracking.experiment, cfg.tracking.artifact_root)
-        with tracking.start(run_name="benchmark", tags={"stage": "benchmark"}):
-            tracking.log_params(tracking.flatten({"benchmark": OmegaConf.to_container(bcfg, resolve=True),
-                                                  "machine": machine}))
-            for r in rows:
-                tracking.log_metrics({k: v for k, v in r.items() if k != "method"}, prefix=f"{r['method']}.")
-            mlflow.log_table(df, "tables/benchmark.json")
-            mlflow.log_figure(fig, "figures/error_vs_time.png")
-            tracking.log_artifact(out / "results.csv")
-    plt.close(fig)
+               "torch": torch.__version__, "threads": torch.get_num_threads(), "group": settings.group,
+               "holes": settings.holes}
+    with stage_run(tracking, "benchmark", {"stage": "benchmark"}) as mlrun:
+        mlrun.log_params({"benchmark": OmegaConf.to_container(cfg.benchmark, resolve=True), "machine": machine})
+        rows = []
+        for m, (solver, setup_s) in solvers.items():
+            row, _ = measure(solver, pose, safety.boom.preview_depth, safety, settings.single)
+            rows.append({"method": m, **row, "setup_s": setup_s})
+            mlrun.log_metrics(row, prefix=f"{m}.")
+            log.info("%-10s mean %.4g mm, p95 %.4g mm, solved<=1mm %.1f %%, collisions %.1f %%, %.4g ms/hole batched",
+                     m, row["hole_mm_mean"], row["hole_mm_p95"], 100 * row["solved_1mm_share"],
+                     100 * row["collision_rate_paper"], row["batch_ms_per_hole"])
+        df = pd.DataFrame(rows, columns=COLUMNS)
+        write_results(df, machine, out)
+        mlrun.log_table(df, "tables/benchmark.json")
+        mlrun.log_figure(error_vs_time(df), "figures/error_vs_time.png")
+        mlrun.log_artifact(out / "results.csv")
     return df
+
+
+def write_results(df: pd.DataFrame, machine: dict, out) -> None:
+    write_csv(df, out / "results.csv")
+    # keyed by method so `dvc metrics show` / `dvc exp show` list one column per method and figure
+    finite = lambda v: v if not isinstance(v, float) or math.isfinite(v) else None  # noqa: E731  NaN: not measured
+    write_json({"machine": machine, **{r["method"]: {k: finite(v) for k, v in r.items() if k != "method"}
+                                        for r in df.to_dict("records")}}, out / "results.json")
+    write_text(f"Test group {machine['group']}, first {machine['holes']} holes; {machine['processor']}, "
+               f"{machine['threads']} torch threads, torch {machine['torch']}.\n\n" + markdown(df), out / "results.md")
+    save_figure(error_vs_time(df), out / "figures" / "error_vs_time.png")
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
+    configure_process(cfg.benchmark.threads)
     run(cfg)
 
 

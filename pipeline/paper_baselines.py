@@ -2,182 +2,53 @@
 
     python -m pipeline.paper_baselines
 
-* paper 002 (PSO / EOPSO / CEOPSO) on huang9 and jumbo8: mean position / orientation error of
-  the global best after 50 and 100 iterations, mean iterations to reach three accuracies, and
-  CEOPSO's population-size table; targets are tool frames of random joint vectors;
-* paper 003 (GA) on rescue6: its Table 3 poses with plain GA and with space decomposition;
-* paper 001 (RBF) on jumbo8: joint errors on its 1 200 held-out samples and per-axis collar
-  errors on the test groups.
-
-Writes ``paths.data/benchmark/papers/{pso,pso_population,ga,rbf}.csv`` and ``papers.md``, and logs
-them to MLflow (run ``paper_baselines``).
+Papers 002 (PSO family on huang9 and jumbo8), 003 (GA on rescue6) and 001 (RBF on jumbo8); see
+:mod:`pipeline.evaluation.paper_experiments`. Writes ``paths.data/benchmark/papers/{pso,
+pso_population,ga,rbf}.csv`` and ``papers.md``, and logs them to MLflow (run ``paper_baselines``).
 """
 
 from __future__ import annotations
 
-import logging
-import math
-
 import hydra
-import pandas as pd
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from pipeline.benchmark import markdown_table
 from pipeline.core.build import load_boom
 from pipeline.core.config import project_path
-from pipeline.core.io import atomic_write, write_text
-from pipeline.data.tables import read_poses
-from pipeline.evaluation.paper_numbers import PAPER_002
-from pipeline.solvers.base import FrameTargets, HoleTargets, JointSpace, tool_transform
-from pipeline.solvers.ga import GAParams, GeneticIK
-from pipeline.solvers.pso import ParticleSwarm, params_for
-from pipeline.solvers.rbf import RBFSolver
-from pipeline.tracking import runs as tracking
-
-log = logging.getLogger(__name__)
+from pipeline.core.device import configure_process
+from pipeline.core.io import write_csv, write_text
+from pipeline.data.hole_sets import read_hole_poses
+from pipeline.evaluation.markdown import markdown_table
+from pipeline.evaluation.paper_experiments import ga_experiments, paper_metrics, pso_experiments, rbf_experiment
+from pipeline.tracking.runs import TrackingSettings, stage_run
 
 
-def random_frames(boom_name: str, n: int, seed: int) -> tuple[FrameTargets, object]:
-    boom = load_boom(boom_name)
-    space = JointSpace(boom)
-    q = space.full(space.uniform((n,), torch.Generator().manual_seed(seed)))
-    return FrameTargets.from_transforms(tool_transform(boom, q)), boom
-
-
-def pso_experiments(cfg) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Paper 002 Figs. 5-7 and Table 3, as tables."""
-    rows = []
-    for boom_name in cfg.booms:
-        targets, boom = random_frames(boom_name, int(cfg.runs), int(cfg.seed))
-        for variant in ("pso", "eopso", "ceopso"):
-            params = params_for(variant, {"iterations": int(cfg.iterations), "seed": int(cfg.seed)})
-            solver = ParticleSwarm(boom, params)
-            result = solver.solve(targets)
-            tr = solver.trace
-            row = {"boom": boom_name, "method": variant, "runs": len(targets), "wall_s": result.wall_s}
-            for it in cfg.checkpoints:
-                row[f"pos_mm_{it}"] = 1000 * float(tr.position[it].mean())
-                row[f"ori_rad_{it}"] = float(tr.orientation[it].mean())
-            for tol_p, tol_o in cfg.reach:
-                first = tr.first_reach(tol_p, tol_o)
-                ok = first >= 0
-                key = f"{1000 * tol_p:g}mm_{tol_o:g}rad"
-                row[f"reached_{key}"] = float(ok.double().mean())
-                row[f"iters_{key}"] = float(first[ok].double().mean()) if ok.any() else math.nan
-            rows.append(row)
-            log.info("paper 002 %s %s: %s", boom_name, variant, {k: round(v, 4) for k, v in row.items()
-                                                                  if isinstance(v, float)})
-    pop_rows = []
-    targets, boom = random_frames(cfg.population_boom, int(cfg.runs), int(cfg.seed))
-    tol_p, tol_o = cfg.reach[0]
-    for pop in cfg.populations:
-        solver = ParticleSwarm(boom, params_for("ceopso", {"population": int(pop), "iterations": int(cfg.iterations),
-                                                           "seed": int(cfg.seed)}))
-        solver.solve(targets)
-        first = solver.trace.first_reach(tol_p, tol_o)
-        ok = first >= 0
-        its = first[ok].double()
-        pop_rows.append({"boom": cfg.population_boom, "population": int(pop), "reached": float(ok.double().mean()),
-                         "iters_mean": float(its.mean()) if ok.any() else math.nan,
-                         "iters_var": float(its.var()) if ok.sum() > 1 else math.nan,
-                         "paper_iters_mean": PAPER_002["population_iters"].get(int(pop), math.nan)})
-    return pd.DataFrame(rows), pd.DataFrame(pop_rows)
-
-
-def ga_experiments(cfg) -> pd.DataFrame:
-    """Paper 003 Table 3: the four poses, plain GA and GA with space decomposition."""
-    boom = load_boom(cfg.boom)
-    q_true = torch.deg2rad(torch.tensor(list(cfg.poses_deg), dtype=torch.float64))
-    targets = FrameTargets.from_transforms(tool_transform(boom, q_true))
-    rows = []
-    for decomposition in (False, True):
-        solver = GeneticIK(boom, GAParams(decomposition=decomposition, generations=int(cfg.generations),
-                                          seed=int(cfg.seed)))
-        result = solver.solve(targets)
-        for k in range(len(targets)):
-            rows.append({
-                "method": "GA + space decomposition" if decomposition else "GA",
-                "pose": k + 1,
-                "target_deg": [round(v, 2) for v in cfg.poses_deg[k]],
-                "found_deg": [round(float(v), 2) for v in torch.rad2deg(result.q[k])],
-                "target_mm": [round(float(v), 3) for v in 1000 * targets.position[k]],
-                "position_error_mm": 1000 * float(result.errors["position"][k]),
-                "orientation_error_deg": math.degrees(float(result.errors["orientation"][k])),
-                "level": int(solver.level[k]),
-                "wall_s": result.wall_s,
-            })
-    return pd.DataFrame(rows)
-
-
-def rbf_experiment(cfg, bcfg, data, boom_cfg) -> pd.DataFrame:
-    """Paper 001: held-out joint errors and per-axis collar errors on the test groups."""
-    boom = load_boom(boom_cfg)
-    spec = OmegaConf.to_container(bcfg.solvers.rbf, resolve=True)
-    spec.pop("kind")
-    solver = RBFSolver(boom, **spec).fit()
-    feats, x = solver.test_set
-    joint_err = (solver.net(feats) - x).abs()
-    span = solver.space.upper - solver.space.lower
-    fit_feats, fit_x = solver.fit_set
-    fit_err = (solver.net(fit_feats) - fit_x).abs().max()
-    rows = [{"key": "fit_residual_max", "what": "fit samples: max abs joint error (interpolation residual, rad or m)",
-             "value": float(fit_err)},
-            {"key": "heldout_joint_error_max_pct", "what": "held-out samples: max joint error, % of range",
-             "value": float((100 * joint_err / span).max())},
-            {"key": "heldout_joint_error_mean_pct", "what": "held-out samples: mean joint error, % of range",
-             "value": float((100 * joint_err / span).mean())}]
-    poses = torch.cat([read_poses(data / "holes" / f"test_group_{k}.parquet")[1] for k in cfg.groups]).double()
-    result = solver.solve(HoleTargets(poses, boom.preview_depth))
-    collar = (tool_transform(boom, result.q)[:, :3, 3] - poses[:, :3]).abs() * 1000
-    for axis, k in zip("XYZ", range(3), strict=True):
-        rows.append({"key": f"collar_{axis.lower()}_mean_mm", "what": f"test groups: collar error {axis} mean (mm)",
-                     "value": float(collar[:, k].mean())})
-        rows.append({"key": f"collar_{axis.lower()}_max_mm", "what": f"test groups: collar error {axis} max (mm)",
-                     "value": float(collar[:, k].max())})
-    hole_mm = 1000 * float(result.errors["hole"].mean())
-    rows.append({"key": "hole_mm_mean", "what": "test groups: mean hole-seeking error (mm)", "value": hole_mm})
-    return pd.DataFrame(rows)
-
-
-def run(cfg: DictConfig) -> dict[str, pd.DataFrame]:
-    papers = cfg.benchmark.papers
-    torch.set_num_threads(int(cfg.benchmark.threads))
+def run(cfg: DictConfig) -> dict:
+    papers, tracking = cfg.benchmark.papers, TrackingSettings.from_config(cfg.tracking)
     data = project_path(cfg.paths.data)
     out = data / "benchmark" / "papers"
-    tables = {}
-    tables["pso"], tables["pso_population"] = pso_experiments(papers.pso)
-    tables["ga"] = ga_experiments(papers.ga)
-    tables["rbf"] = rbf_experiment(papers.rbf, cfg.benchmark, data, cfg.boom)
-    for name, df in tables.items():
-        atomic_write(out / f"{name}.csv", lambda tmp, df=df: df.to_csv(tmp, index=False))
-    text = "".join(f"## {name}\n\n{markdown_table(df)}\n" for name, df in tables.items())
-    write_text(text, out / "papers.md")
-    if cfg.tracking.enabled:
-        import mlflow
-
-        tracking.setup(cfg.tracking.uri, cfg.tracking.experiment, cfg.tracking.artifact_root)
-        with tracking.start(run_name="paper_baselines", tags={"stage": "paper_baselines"}):
-            tracking.log_params(tracking.flatten({"papers": OmegaConf.to_container(papers, resolve=True)}))
-            metrics = {}
-            for r in tables["pso"].to_dict("records"):
-                metrics.update({f"pso.{r['boom']}.{r['method']}.{k}": v for k, v in r.items()
-                                if isinstance(v, float) and math.isfinite(v) and k != "wall_s"})
-            for r in tables["ga"].to_dict("records"):
-                tag = "ga_decomposition" if "decomposition" in r["method"] else "ga"
-                metrics[f"{tag}.pose{r['pose']}.position_error_mm"] = r["position_error_mm"]
-            metrics.update({f"rbf.{k}": v for k, v in zip(tables["rbf"]["key"], tables["rbf"]["value"], strict=True)
-                            if math.isfinite(v)})
-            tracking.log_metrics(metrics)
-            for name, df in tables.items():
-                mlflow.log_table(df.astype({c: str for c in df.columns if df[c].dtype == object}),
-                                 f"tables/{name}.json")
-            tracking.log_artifact(out / "papers.md")
+    # inputs first: the swarms take minutes, a missing hole set must not wait for them
+    holes = {k: read_hole_poses(data / "holes", f"test_group_{k}.parquet") for k in papers.rbf.groups}
+    poses = torch.cat([pose for _, pose in holes.values()]).double()
+    boom = load_boom(cfg.boom)
+    with stage_run(tracking, "paper_baselines", {"stage": "paper_baselines"}) as mlrun:
+        mlrun.log_params({"papers": OmegaConf.to_container(papers, resolve=True)})
+        tables = {}
+        tables["pso"], tables["pso_population"] = pso_experiments(papers.pso)
+        tables["ga"] = ga_experiments(papers.ga)
+        tables["rbf"] = rbf_experiment(OmegaConf.to_container(cfg.benchmark.solvers.rbf, resolve=True), boom, poses)
+        for name, df in tables.items():
+            write_csv(df, out / f"{name}.csv")
+            mlrun.log_table(df, f"tables/{name}.json")
+        write_text("".join(f"## {name}\n\n{markdown_table(df)}\n" for name, df in tables.items()), out / "papers.md")
+        mlrun.log_metrics(paper_metrics(tables))
+        mlrun.log_artifact(out / "papers.md")
     return tables
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
+    configure_process(cfg.benchmark.threads)
     run(cfg)
 
 

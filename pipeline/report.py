@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import logging
-import shutil
 
 import hydra
 import pandas as pd
@@ -17,9 +16,10 @@ from omegaconf import DictConfig
 
 from pipeline.core.config import project_path
 from pipeline.core.errors import InputError
-from pipeline.core.io import write_text
+from pipeline.core.io import copy_file, write_text
 from pipeline.evaluation.paper_numbers import PAPER000, PAPER000_TABLE3
-from pipeline.geometry.collision import KINDS
+from pipeline.geometry.collision import SAFETY_KINDS
+from pipeline.tracking.runs import TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
 
@@ -48,40 +48,34 @@ def render(metrics: dict, collisions: pd.DataFrame, figures: list[str]) -> str:
             f"| {s['solve_ms_per_1000']:.2f} |"
         )
     lines += ["", "## Collisions per test group (paper 000 Table 3 layout; paper's counts in brackets)", "",
-              "| group | method | " + " | ".join(KINDS) + " |", "|---|---|" + "---|" * len(KINDS)]
+              "| group | method | " + " | ".join(SAFETY_KINDS) + " |", "|---|---|" + "---|" * len(SAFETY_KINDS)]
     for _, row in collisions.iterrows():
         paper = PAPER000_TABLE3.get(row["method"])
         g = int(row["group"])
         ref = paper[g - 1] if paper and 1 <= g <= len(paper) else None
-        cells = [f"{int(row[k])} ({ref[i]})" if ref else f"{int(row[k])}" for i, k in enumerate(KINDS)]
+        cells = [f"{int(row[k])} ({ref[i]})" if ref else f"{int(row[k])}" for i, k in enumerate(SAFETY_KINDS)]
         lines.append(f"| {g} | {row['method'].upper()} | " + " | ".join(cells) + " |")
     lines += ["", "## Figures", ""] + [f"![{f}](figures/{f})" for f in figures] + [""]
     return "\n".join(lines)
 
 
 def run(cfg: DictConfig) -> str:
-    from pipeline.tracking import runs as tracking
-
+    tracking = TrackingSettings.from_config(cfg.tracking)
     data = project_path(cfg.paths.data)
-    ev = data / "eval"
-    if not (ev / "metrics.json").is_file():
-        raise InputError(f"{ev / 'metrics.json'}: missing; run python -m pipeline.evaluate first")
+    ev, out = data / "eval", data / "report"
+    for needed in (ev / "metrics.json", ev / "collisions.csv"):
+        if not needed.is_file():
+            raise InputError(f"{needed}: missing; run python -m pipeline.evaluate (or dvc repro evaluate) first")
     metrics = json.loads((ev / "metrics.json").read_text())
     collisions = pd.read_csv(ev / "collisions.csv")
-    out = data / "report"
-    (out / "figures").mkdir(parents=True, exist_ok=True)
     figures = sorted(p.name for p in (ev / "figures").glob("*.png"))
-    for name in figures:
-        shutil.copyfile(ev / "figures" / name, out / "figures" / name)
-    text = render(metrics, collisions, figures)
-    write_text(text, out / "README.md")
-    if cfg.tracking.enabled:
-        tracking.setup(cfg.tracking.uri, cfg.tracking.experiment, cfg.tracking.artifact_root)
-        with tracking.start(run_name="report", tags={"stage": "report"}):
-            import mlflow
-
-            mlflow.log_text(text, "report/README.md")
-            mlflow.log_artifacts(str(out / "figures"), "report/figures")
+    with stage_run(tracking, "report", {"stage": "report"}) as mlrun:
+        for name in figures:
+            copy_file(ev / "figures" / name, out / "figures" / name)
+        text = render(metrics, collisions, figures)
+        write_text(text, out / "README.md")
+        mlrun.log_text(text, "report/README.md")
+        mlrun.log_artifact(out / "figures", "report/figures")
     log.info("report written to %s", out / "README.md")
     return text
 

@@ -3,143 +3,112 @@
     python -m pipeline.train method=cuikm
     python -m pipeline.train -m method=cuikm method.mu=0.1,1,10,100     # Hydra multirun
 
-Writes ``paths.data/models/<method>.pt`` (loads alone with ``pipeline.learning.models.load_checkpoint``)
-and ``<method>_history.csv`` (the held-out training curves).
+Writes ``paths.data/models/<method>.pt`` (loads alone with ``pipeline.learning.models.load_checkpoint``),
+``<method>_history.csv`` (the held-out training curves) and ``<method>_final.json``. The three are
+written in a private folder first, logged to MLflow from there, and only then moved into place
+together: what a run logged is always its own model, whatever other trainings run beside it.
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
+import tempfile
 import time
+from pathlib import Path
 
 import hydra
 import pandas as pd
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from pipeline.core.build import build_safety
+from pipeline.core.build import build_safety, hole_sampling
 from pipeline.core.config import as_dict, project_path
-from pipeline.core.device import resolve_device
-from pipeline.core.errors import ConfigError
-from pipeline.core.io import write_json
-from pipeline.data.holes import HoleSampling, sample_holes
-from pipeline.data.tables import read_poses, write_csv
-from pipeline.evaluation.metrics import solution_table, summarize
+from pipeline.core.device import configure_process, resolve_device
+from pipeline.core.io import publish, require_writable, write_csv, write_json
 from pipeline.geometry.collision import SafetyDistances
-from pipeline.learning.models import build_model, save_checkpoint
-from pipeline.learning.training import Objective, dataset_batches, fresh_hole_batches, train
+from pipeline.learning.models import IKNet, ModelSettings, build_model, save_checkpoint
+from pipeline.learning.training import (
+    MethodSettings,
+    TrainSettings,
+    check_method_key,
+    final_metrics,
+    fit,
+    load_training_data,
+    training_batches,
+)
+from pipeline.tracking import sweep
+from pipeline.tracking.runs import StageRun, TrackingSettings, log_training_progress, stage_run
 
 log = logging.getLogger(__name__)
 
 
-def objective_from(method: DictConfig) -> Objective:
-    for key in ("lam", "mu"):
-        if not float(method[key]) >= 0:
-            raise ConfigError(f"method.{key} = {method[key]!r}: expected a non-negative weight")
-    return Objective(bool(method.supervised), float(method.lam), float(method.mu), str(method.pose_loss))
-
-
-def method_node(cfg: DictConfig) -> DictConfig:
-    """The method to train: ``cfg.method``, or the node ``train.method_key`` names."""
-    key = str(cfg.train.get("method_key") or "method")
-    node = OmegaConf.select(cfg, key)
-    if not isinstance(node, DictConfig) or "name" not in node:
-        raise ConfigError(f"train.method_key = {key!r}: no method config at that key")
-    return node
-
-
-def sampling_from(holes: DictConfig) -> HoleSampling:
-    return HoleSampling(tuple(holes.face_x), float(holes.cone_deg), float(holes.inset))
-
-
 def run(cfg: DictConfig) -> dict:
     """Train the configured method; returns the final held-out metrics and the checkpoint path."""
-    from pipeline.tracking import sweep
-
-    if cfg.train.threads:
-        torch.set_num_threads(int(cfg.train.threads))
+    settings, model_s, tracking = (TrainSettings.from_config(cfg.train), ModelSettings.from_config(cfg.model),
+                                   TrackingSettings.from_config(cfg.tracking))
+    check_method_key(settings.method_key, OmegaConf.select(cfg, settings.method_key))
+    method = MethodSettings.from_config(OmegaConf.select(cfg, settings.method_key), settings.method_key)
     device = resolve_device(cfg.device)
-    torch.manual_seed(int(cfg.train.seed))
-    method = method_node(cfg)
-    objective = objective_from(method)
-    safety = build_safety(cfg.boom, cfg.tunnel, cfg.safety)
-    boom = safety.boom
-    train_safety = safety.with_distances(SafetyDistances.from_config(as_dict(method.train_safety)))
-    sampling = sampling_from(cfg.holes)
-    holes_dir = project_path(cfg.paths.data) / "holes"
-    batch = int(cfg.train.batch_size)
-    if objective.supervised:
-        sup = pd.read_parquet(holes_dir / "sup.parquet")
-        _, pose = read_poses(holes_dir / "sup.parquet")
-        q = torch.tensor(sup[boom.joint_names].to_numpy())
-        batches = dataset_batches(pose.float().to(device), q.float().to(device), batch, int(cfg.train.seed))
-    else:
-        _, pose = read_poses(holes_dir / "train.parquet")
-        if cfg.train.fresh_holes:
-            batches = fresh_hole_batches(safety, sampling, batch, int(cfg.train.seed), device)
-        else:
-            batches = dataset_batches(pose.float().to(device), None, batch, int(cfg.train.seed))
-    model = build_model(boom, pose.mean(0), pose.std(0), int(cfg.model.width), int(cfg.model.depth),
-                        str(cfg.model.activation)).to(device)
-    val_pose, _ = sample_holes(int(cfg.train.val_size), safety, sampling, int(cfg.train.val_seed))
-    val_pose = val_pose.float().to(device)
-
-    name = str(method.name)
+    safety, sampling = build_safety(cfg.boom, cfg.tunnel, cfg.safety), hole_sampling(cfg.holes)
+    train_safety = safety.with_distances(SafetyDistances.from_config(method.train_safety))
     # A sweep job keeps its model in its own job folder; a single run writes paths.data/models.
-    models_dir = sweep.job_output_dir() or project_path(cfg.paths.data) / "models"
-    ckpt = models_dir / f"{name}.pt"
-    # What this run trained: its method under "method", without the other methods' configs.
-    run_cfg = {**as_dict(cfg), "method": as_dict(method)}
-    run_cfg.pop("baselines", None)
-    tracking_on = bool(cfg.tracking.enabled)
-    if tracking_on:  # imported only when used: a run without tracking needs no MLflow
-        from pipeline.tracking import runs as tracking
-
-        tracking.setup(cfg.tracking.uri, cfg.tracking.experiment, cfg.tracking.artifact_root)
-    t0 = time.perf_counter()
-    tags = {"stage": "train", "method": name, **sweep.child_tags()}
-    run_ctx = tracking.start(run_name=f"train-{name}", tags=tags) if tracking_on else contextlib.nullcontext()
-    with run_ctx:
-        if tracking_on:
-            tracking.log_params(tracking.flatten(run_cfg))
-        history = train(
-            model, boom, train_safety, objective, batches,
-            int(cfg.train.steps), float(cfg.train.lr), val_pose, int(cfg.train.eval_every),
-            cfg.train.grad_clip, progress=bool(cfg.train.progress),
-        )
-        train_s = time.perf_counter() - t0
+    models_dir = require_writable(sweep.job_output_dir() or project_path(cfg.paths.data) / "models", "paths.data")
+    data = load_training_data(project_path(cfg.paths.data) / "holes", safety.boom, safety, sampling,
+                              method.supervised, settings.val_size, settings.val_seed)
+    with torch.random.fork_rng(devices=[]):  # seeded initial weights without touching the global generator
+        torch.manual_seed(settings.seed)
+        model = build_model(safety.boom, data.pose.mean(0), data.pose.std(0), model_s.width, model_s.depth,
+                            model_s.activation).to(device)
+    run_cfg = {**as_dict(cfg), "method": as_dict(OmegaConf.select(cfg, settings.method_key))}
+    run_cfg.pop("baselines", None)  # what this run trained, without the other methods' configs
+    tags = {"stage": "train", "method": method.name, **sweep.child_tags()}
+    with stage_run(tracking, f"train-{method.name}", tags, system_metrics=True) as mlrun:
+        sweep.record_job_run(mlrun.run_id)
+        mlrun.log_params(run_cfg)
+        for context, (path, df) in data.files.items():
+            mlrun.log_dataset(df, path, context)
+        t0 = time.perf_counter()
+        history = fit(model, safety.boom, train_safety, method.objective,
+                      training_batches(data, method.objective, settings, safety, sampling, device),
+                      settings.steps, settings.lr, data.val_pose.float().to(device), settings.eval_every,
+                      settings.grad_clip, progress=settings.progress,
+                      on_eval=lambda step, rec, elapsed: log_training_progress(
+                          mlrun, step, settings.steps, rec, elapsed, method.name, echo=not settings.progress))
         model = model.cpu()
-        with torch.no_grad():
-            val = summarize(solution_table(val_pose.cpu(), model(val_pose.cpu()), safety))
-        final = {
-            **{k: v for k, v in history[-1].items() if k.startswith("val_")},
-            "val_hole_mm_p95": val["hole_mm_p95"],
-            "val_collision_rate": val["collision_rate_paper"],
-            "val_any_violation_share": val["any_violation_share"],
-            "train_seconds": train_s,
-        }
-        save_checkpoint(ckpt, model, as_dict(cfg.boom), {
-            "method": name, "history": history, "final": final,
-            "config": run_cfg,
-        })
-        hist_df = pd.DataFrame(history)
-        write_csv(hist_df, models_dir / f"{name}_history.csv")
-        write_json({"method": name, "overrides": sweep.job_overrides(), **final}, models_dir / f"{name}_final.json")
-        if tracking_on:
-            tracking.log_history(history)
-            tracking.log_metrics(final, prefix="final_")
-            tracking.log_training_figure(hist_df, name)
-            if cfg.train.log_model:
-                tracking.log_network(model, val_pose[:4].cpu().numpy())
-            tracking.log_artifact(ckpt)
+        final = final_metrics(model, data.val_pose.float(), safety, history, time.perf_counter() - t0)
+        save_outputs(model, history, final, models_dir, method.name, as_dict(cfg.boom), run_cfg, mlrun, tracking,
+                     settings.log_model, data.val_pose[:4].float().numpy())
     log.info("trained %s in %.0f s: held-out hole-seeking error %.2f mm -> %s",
-             name, train_s, final["val_hole_mm"], ckpt)
-    return {"checkpoint": str(ckpt), **final}
+             method.name, final["train_seconds"], final["val_hole_mm"], models_dir / f"{method.name}.pt")
+    return {"checkpoint": str(models_dir / f"{method.name}.pt"), **final}
+
+
+def save_outputs(model: IKNet, history: list[dict], final: dict, models_dir: Path, name: str, boom_cfg: dict,
+                 run_cfg: dict, mlrun: StageRun, tracking: TrackingSettings, log_model: bool, example) -> None:
+    """Checkpoint, history and summary into a private folder, logged from there, then published."""
+    with tempfile.TemporaryDirectory(prefix=f".{name}.run-", dir=models_dir) as tmp:
+        files = {Path(tmp) / f: models_dir / f for f in (f"{name}.pt", f"{name}_history.csv", f"{name}_final.json")}
+        ckpt, hist, summary = files
+        save_checkpoint(ckpt, model, boom_cfg, {"method": name, "history": history, "final": final,
+                                                "config": run_cfg, "mlflow_run_id": mlrun.run_id})
+        hist_df = pd.DataFrame(history)
+        write_csv(hist_df, hist)
+        write_json({"method": name, "overrides": sweep.job_overrides(), **final}, summary)
+        mlrun.log_metrics(final, prefix="final_")
+        if mlrun.active:
+            from pipeline.evaluation.plots import training_curves
+
+            mlrun.log_figure(training_curves({name: hist_df}), f"figures/training_{name}.png")
+            if log_model:
+                mlrun.log_network(model, example,
+                                  registered_name=f"{tracking.experiment}-{name}" if tracking.register_models else None)
+            mlrun.log_artifact(ckpt)
+        publish(files, models_dir / f".{name}.lock")
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> float:
+    configure_process(cfg.train.get("threads"))
     return run(cfg)["val_hole_mm"]
 
 

@@ -14,7 +14,7 @@ from pipeline.core.config import PROJECT_ROOT, compose
 from pipeline.core.errors import ConfigError
 from pipeline.data.tables import POSE_COLUMNS
 from pipeline.generate import run
-from pipeline.geometry.collision import KINDS
+from pipeline.geometry.collision import SAFETY_KINDS
 from pipeline.geometry.tunnel import Horseshoe
 
 SMALL = ["holes.unsup.size=1500", "holes.sup.size=800", "holes.test.size=300"]
@@ -42,7 +42,7 @@ def test_files_and_columns(generated):
     on_disk = json.loads((holes / "meta.json").read_text())
     assert on_disk["seeds"] == {"unsup": 0, "sup": 1, "test": [101, 102, 103, 104, 105]}
     assert 0 < on_disk["unsup_rejection"]["rejection_rate"] < 1
-    assert set(on_disk["sup_violation_share"]) == {*KINDS, "any"}
+    assert set(on_disk["sup_violation_share"]) == {*SAFETY_KINDS, "any"}
     assert on_disk["config"]["boom"]["name"] == "jumbo8"
 
 
@@ -104,7 +104,7 @@ def test_cone_angle_is_a_config_value(tmp_path):
     ("override", "pattern"),
     [
         ("safety.wall=-0.5", r"safety.wall = -0.5: a safety distance cannot be below zero"),
-        ("holes.unsup.size=0", r"holes.unsup.size = 0: expected a positive integer"),
+        ("holes.unsup.size=0", r"holes.unsup.size = 0: must be >= 1"),
         ("holes.cone_deg=120", r"holes.cone_deg = 120.0"),
         ("holes.face_x=[7.0,6.0]", r"holes.face_x = \[7.0, 6.0\]"),
         ("holes.test.seeds=[0,102,103,104,105]", r"seeds must all differ"),
@@ -122,6 +122,7 @@ def test_bad_config_is_named_and_nothing_is_overwritten(generated, tmp_path, ove
     assert sorted(p.name for p in target.iterdir()) == ["train.parquet"]
 
 
+@pytest.mark.slow
 def test_cli_entry_point(tmp_path):
     """``python -m pipeline.generate`` as a user runs it; a bad override fails with the field named."""
     cmd = [sys.executable, "-m", "pipeline.generate", *SMALL, f"paths.data={tmp_path}", f"hydra.run.dir={tmp_path}/h"]

@@ -9,7 +9,8 @@ import torch
 from pipeline.core.build import load_boom
 from pipeline.core.config import load_group_file
 from pipeline.core.errors import ConfigError, InputError
-from pipeline.geometry.kinematics import Boom, pose_errors
+from pipeline.geometry.boom_config import boom_from_config
+from pipeline.geometry.kinematics import pose_errors
 
 r = math.radians
 
@@ -56,10 +57,10 @@ def test_huang9_l1_extends_row2_link():
     """L1 adds to row 2's a: the same as a boom whose table has a = 3978 + L1 and L1 locked."""
     cfg = load_group_file("boom", "huang9")
     cfg["joints"][6]["locked"] = None
-    boom = Boom.from_config(cfg)
+    boom = boom_from_config(cfg)
     stretched = copy.deepcopy(cfg)
     stretched["dh"][1]["a"] = 3978 + 700
-    fixed = Boom.from_config(stretched)
+    fixed = boom_from_config(stretched)
     q = torch.tensor([0.1, -0.4, 0.3, 0.2, -0.5, 0.6, 0.0, 1.2], dtype=torch.float64)
     q_l1 = q.clone()
     q_l1[6] = 0.7
@@ -93,8 +94,8 @@ def test_standard_equals_modified_rewrite(name):
     cfg = load_group_file("boom", name)
     for joint in cfg["joints"]:
         joint["locked"] = None
-    std = Boom.from_config(cfg)
-    mod = Boom.from_config(_standard_as_modified(cfg))
+    std = boom_from_config(cfg)
+    mod = boom_from_config(_standard_as_modified(cfg))
     gen = torch.Generator().manual_seed(0)
     lo, hi = std.limits()
     q = lo + torch.rand(64, std.n_joints, generator=gen, dtype=torch.float64) * (hi - lo)
@@ -168,7 +169,7 @@ def test_dh_row_missing_column():
     cfg = load_group_file("boom", "jumbo8")
     del cfg["dh"][3]["alpha"]
     with pytest.raises(ConfigError, match=r"dh row 4: missing required field 'alpha'"):
-        Boom.from_config(cfg)
+        boom_from_config(cfg)
 
 
 @pytest.mark.parametrize(
@@ -188,7 +189,7 @@ def test_bad_boom_fields(path, value, pattern):
         node = node[key]
     node[path[-1]] = value
     with pytest.raises(ConfigError, match=pattern):
-        Boom.from_config(cfg)
+        boom_from_config(cfg)
 
 
 def test_joint_vector_of_wrong_length(jumbo8):

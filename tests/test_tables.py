@@ -6,7 +6,8 @@ import pandas as pd
 import pytest
 
 from pipeline.core.errors import InputError
-from pipeline.data.tables import POSE_COLUMNS, read_poses, write_parquet
+from pipeline.core.io import write_parquet
+from pipeline.data.tables import POSE_COLUMNS, read_poses
 
 
 def _plan():

@@ -14,29 +14,23 @@ from pipeline.core.config import compose
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.data.holes import HoleSampling, sample_holes, sample_joints
 from pipeline.evaluation.metrics import solution_table, summarize
-from pipeline.geometry.collision import KINDS
+from pipeline.geometry.collision import SAFETY_KINDS
 from pipeline.learning.models import build_model, load_checkpoint
-from pipeline.learning.training import Objective, dataset_batches, loss_terms
+from pipeline.learning.training import MethodSettings, Objective, dataset_batches, loss_terms
 
 METHODS = ["sikm", "uikm", "cuikm"]
 
 
-def quick(tmp, *extra):
-    return compose([
-        "experiment=quick", f"paths.data={tmp}/data", f"tracking.uri=sqlite:///{tmp}/mlflow.db",
-        f"tracking.artifact_root={tmp}/artifacts", *extra,
-    ])
-
-
 @pytest.fixture(scope="module")
-def study(tmp_path_factory):
+def study(tmp_path_factory, make_cfg):
     tmp = tmp_path_factory.mktemp("study")
-    generate.run(quick(tmp))
-    trained = {m: train.run(quick(tmp, f"method={m}")) for m in METHODS}
-    metrics = evaluate.run(quick(tmp))
+    generate.run(make_cfg(tmp))
+    trained = {m: train.run(make_cfg(tmp, f"method={m}")) for m in METHODS}
+    metrics = evaluate.run(make_cfg(tmp))
     return tmp, trained, metrics
 
 
+@pytest.mark.slow
 def test_quick_experiment_writes_everything(study):
     tmp, _, metrics = study
     data = tmp / "data"
@@ -52,18 +46,19 @@ def test_quick_experiment_writes_everything(study):
     for m in METHODS:
         keys = ["start_mm_mean", "preview_mm_median", "hole_mm_p95", "hole_mm_max", "direction_deg_mean",
                 "collision_rate_paper", "any_violation_share", "solve_ms_per_1000"]
-        for key in [*keys, *(f"collisions_{k}" for k in KINDS)]:
+        for key in [*keys, *(f"collisions_{k}" for k in SAFETY_KINDS)]:
             assert math.isfinite(on_disk[m][key]), (m, key)
         assert on_disk[m]["within_limits_share"] == 1.0  # the output squashing keeps every joint in range
     table = pd.read_csv(data / "eval" / "collisions.csv")
-    assert list(table.columns) == ["group", "method", *KINDS] and len(table) == 15
+    assert list(table.columns) == ["group", "method", *SAFETY_KINDS] and len(table) == 15
     for m in METHODS:  # the table and the metrics agree
-        assert table[table.method == m][list(KINDS)].to_numpy().sum() == pytest.approx(
+        assert table[table.method == m][list(SAFETY_KINDS)].to_numpy().sum() == pytest.approx(
             on_disk[m]["collision_rate_paper"] * 1000)
     for fig in ["training_curves.png", "face_projection.png", "method_comparison.png"]:
         assert (data / "eval" / "figures" / fig).stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_mlflow_holds_the_runs(study):
     tmp, _, _ = study
     client = MlflowClient(f"sqlite:///{tmp}/mlflow.db")
@@ -87,6 +82,7 @@ def test_mlflow_holds_the_runs(study):
     assert {"tables/collisions.json", "tables/metrics.json"} <= paths
 
 
+@pytest.mark.slow
 def test_checkpoint_loads_alone_and_reproduces_predictions(study):
     tmp, _, _ = study
     model, meta = load_checkpoint(tmp / "data" / "models" / "cuikm.pt")
@@ -98,6 +94,7 @@ def test_checkpoint_loads_alone_and_reproduces_predictions(study):
     assert np.allclose(q, pred.iloc[:, 7:].to_numpy(), atol=1e-6)
 
 
+@pytest.mark.slow
 def test_unsupervised_beats_supervised_on_face_holes(study):
     _, _, metrics = study
     assert metrics["uikm"]["hole_mm_mean"] < metrics["sikm"]["hole_mm_mean"]
@@ -173,16 +170,19 @@ def test_penalty_step_through_the_network_reduces_violations(safety):
 
 
 def test_bad_method_config_is_named(tmp_path):
-    with pytest.raises(ConfigError, match=r"method.mu = -1"):
-        train.objective_from(compose(["method.mu=-1"]).method)
+    with pytest.raises(ConfigError, match=r"method.mu = -1.0: must be >= 0"):
+        MethodSettings.from_config(compose(["method.mu=-1"]).method)
+    with pytest.raises(ConfigError, match=r"method.pose_loss = 'l3'"):
+        MethodSettings.from_config(compose(["method.pose_loss=l3"]).method)
     with pytest.raises(ConfigError, match=r"method.pose_loss = 'l3'"):
         from pipeline.learning.losses import pose_loss
 
         pose_loss(torch.zeros(2, 6), torch.zeros(2, 6), "l3")
 
 
-def test_evaluate_without_models_says_what_is_missing(tmp_path):
-    generate.run(quick(tmp_path))
+@pytest.mark.slow
+def test_evaluate_without_models_says_what_is_missing(tmp_path, make_cfg):
+    generate.run(make_cfg(tmp_path))
     with pytest.raises(InputError, match=r"sikm.pt: no such model checkpoint"):
-        evaluate.run(quick(tmp_path))
+        evaluate.run(make_cfg(tmp_path))
     assert not (tmp_path / "data" / "eval").exists()  # nothing half-written

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 from pipeline.core.config import as_dict, load_group_file
 from pipeline.core.errors import ConfigError
+from pipeline.core.settings import coerce
+from pipeline.data.holes import HoleSampling
+from pipeline.geometry.boom_config import boom_from_config
 from pipeline.geometry.collision import SafetyDistances, SafetyModel
 from pipeline.geometry.kinematics import Boom
 from pipeline.geometry.tunnel import Horseshoe
@@ -14,7 +17,7 @@ def load_boom(boom) -> Boom:
     if isinstance(boom, Boom):
         return boom
     cfg = load_group_file("boom", boom) if isinstance(boom, str) else as_dict(boom)
-    return Boom.from_config(cfg)
+    return boom_from_config(cfg)
 
 
 def build_safety(boom, tunnel_cfg, safety_cfg) -> SafetyModel:
@@ -25,3 +28,12 @@ def build_safety(boom, tunnel_cfg, safety_cfg) -> SafetyModel:
         raise ConfigError(f"safety.points_per_capsule = {n!r}: expected an integer")
     distances = SafetyDistances.from_config({k: v for k, v in safety.items() if k != "points_per_capsule"})
     return SafetyModel(load_boom(boom), Horseshoe.from_config(as_dict(tunnel_cfg)), distances, n)
+
+
+def hole_sampling(holes_cfg) -> HoleSampling:
+    """How holes are drawn (``holes.face_x``, ``holes.cone_deg``, ``holes.inset``), validated."""
+    face_x = coerce(holes_cfg.get("face_x"), "list[float]", "holes.face_x")
+    if len(face_x) != 2:
+        raise ConfigError(f"holes.face_x = {face_x!r}: expected [lower, upper]")
+    return HoleSampling(tuple(face_x), coerce(holes_cfg.get("cone_deg"), "float", "holes.cone_deg"),
+                        coerce(holes_cfg.get("inset"), "float", "holes.inset"))

@@ -10,7 +10,6 @@ import pandas as pd
 import torch
 
 from pipeline.core.errors import InputError
-from pipeline.core.io import atomic_write
 
 POSE_COLUMNS = ["collar_x", "collar_y", "collar_z", "preview_x", "preview_y", "preview_z"]
 
@@ -53,10 +52,3 @@ def read_poses(path: str | Path) -> tuple[pd.DataFrame, torch.Tensor]:
     check_table(df, POSE_COLUMNS, str(path))
     return df, torch.tensor(df[POSE_COLUMNS].to_numpy(dtype=np.float64))
 
-
-def write_parquet(df: pd.DataFrame, path: str | Path) -> None:
-    atomic_write(path, lambda tmp: df.to_parquet(tmp, index=False, engine="pyarrow"))
-
-
-def write_csv(df: pd.DataFrame, path: str | Path) -> None:
-    atomic_write(path, lambda tmp: df.to_csv(tmp, index=False))

@@ -16,9 +16,10 @@ import torch
 
 from pipeline.core.errors import ConfigError
 from pipeline.geometry.kinematics import Boom, Capsule
-from pipeline.geometry.tunnel import SURFACES, Horseshoe, safe_norm
+from pipeline.geometry.rotations import safe_norm
+from pipeline.geometry.tunnel import SURFACES, Horseshoe
 
-KINDS = ("self", *SURFACES)
+SAFETY_KINDS = ("self", *SURFACES)
 
 
 def segment_distance(p1: torch.Tensor, q1: torch.Tensor, p2: torch.Tensor, q2: torch.Tensor, eps: float = 1e-12):
@@ -65,11 +66,11 @@ class SafetyDistances:
 
     @classmethod
     def from_config(cls, cfg: Mapping) -> SafetyDistances:
-        unknown = sorted(set(cfg) - set(KINDS))
+        unknown = sorted(set(cfg) - set(SAFETY_KINDS))
         if unknown:
-            raise ConfigError(f"safety: unknown field(s) {unknown}; allowed: {list(KINDS)}")
+            raise ConfigError(f"safety: unknown field(s) {unknown}; allowed: {list(SAFETY_KINDS)}")
         values = {}
-        for key in KINDS:
+        for key in SAFETY_KINDS:
             if key not in cfg:
                 raise ConfigError(f"safety: missing required field '{key}'")
             v = cfg[key]
@@ -138,7 +139,7 @@ class SafetyModel:
         if selfc is None:  # no self pairs: self collision cannot happen
             selfc = torch.full(frames.shape[:-3], math.inf, dtype=frames.dtype, device=frames.device)
         out["self"] = selfc
-        return {k: out[k] for k in KINDS}
+        return {k: out[k] for k in SAFETY_KINDS}
 
     def tool_body_clearances(self, p: torch.Tensor, z: torch.Tensor) -> dict[str, torch.Tensor]:
         """Tunnel clearances of the bodies fixed to the tool frame, from a hole pose alone.

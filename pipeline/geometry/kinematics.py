@@ -1,8 +1,8 @@
 """Batched, differentiable forward kinematics of serial chains given as D-H rows.
 
-A :class:`Boom` is built from a plain mapping (a ``conf/boom/*.yaml`` file) and
-evaluates every frame of the chain for any leading batch shape, in the dtype and
-on the device of the joint tensor it is given.
+A :class:`Boom` (read from a ``conf/boom/*.yaml`` file by :mod:`pipeline.geometry.boom_config`)
+evaluates every frame of the chain for any leading batch shape, in the dtype and on the device of
+the joint tensor it is given, and the geometric Jacobian of any frame-fixed point from those frames.
 
 Conventions (``convention`` in the config):
 
@@ -11,31 +11,21 @@ Conventions (``convention`` in the config):
 
 A joint drives one parameter of one row: ``theta`` (revolute), ``d`` (prismatic)
 or ``a`` (a prismatic link extension, as huang9's L1). Its value is added to the
-row's offset. Lengths are converted to metres and angles to radians on load.
+row's offset. Lengths are in metres and angles in radians.
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import torch
 
 from pipeline.core.errors import ConfigError, InputError
+from pipeline.geometry.rotations import angle_between
 
 CONVENTIONS = ("modified", "standard")
 JOINT_PARAMS = ("theta", "d", "a")
-ROW_KEYS = ("alpha", "a", "theta", "d")
-LENGTH_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3}
-ANGLE_UNITS = {"deg": math.pi / 180.0, "rad": 1.0}
-BOOM_KEYS = {
-    "name", "convention", "length_unit", "angle_unit", "dh", "joints", "tool",
-    "preview_depth", "bodies", "self_pairs", "description",
-}
-JOINT_KEYS = {"name", "label", "row", "param", "range", "locked"}
-BODY_KEYS = {"start", "end", "radius", "tunnel_skip_end"}
-POINT_KEYS = {"frame", "along_z"}
 
 
 @dataclass(frozen=True)
@@ -82,26 +72,6 @@ class Capsule:
     tunnel_skip_end: float = 0.0
 
 
-def _require(mapping: Mapping, key: str, where: str):
-    if key not in mapping or mapping[key] is None:
-        raise ConfigError(f"{where}: missing required field '{key}'")
-    return mapping[key]
-
-
-def _number(value, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f"{where} = {value!r}: expected a number")
-    if not math.isfinite(value):
-        raise ConfigError(f"{where} = {value!r}: expected a finite number")
-    return float(value)
-
-
-def _reject_unknown(mapping: Mapping, allowed: set[str], where: str) -> None:
-    unknown = sorted(set(mapping) - allowed)
-    if unknown:
-        raise ConfigError(f"{where}: unknown field(s) {unknown}; allowed: {sorted(allowed)}")
-
-
 class Boom:
     """A serial chain with joint limits, a tool point and collision capsules."""
 
@@ -127,112 +97,6 @@ class Boom:
         self.bodies = {b.name: b for b in bodies}
         self.self_pairs = tuple(tuple(p) for p in self_pairs)
         self._cache: dict[tuple, dict[str, torch.Tensor]] = {}
-
-    # ------------------------------------------------------------------ config
-    @classmethod
-    def from_config(cls, cfg: Mapping) -> Boom:
-        """Build a boom from a ``conf/boom/*.yaml`` mapping, validating every field."""
-        if not isinstance(cfg, Mapping):
-            raise ConfigError(f"boom config must be a mapping, got {type(cfg).__name__}")
-        name = str(cfg.get("name", "<unnamed>"))
-        where = f"boom '{name}'"
-        _reject_unknown(cfg, BOOM_KEYS, where)
-        convention = _require(cfg, "convention", where)
-        if convention not in CONVENTIONS:
-            raise ConfigError(f"{where}: convention = {convention!r}; expected one of {CONVENTIONS}")
-        lu = cfg.get("length_unit", "m")
-        au = cfg.get("angle_unit", "deg")
-        if lu not in LENGTH_UNITS:
-            raise ConfigError(f"{where}: length_unit = {lu!r}; expected one of {sorted(LENGTH_UNITS)}")
-        if au not in ANGLE_UNITS:
-            raise ConfigError(f"{where}: angle_unit = {au!r}; expected one of {sorted(ANGLE_UNITS)}")
-        ls, as_ = LENGTH_UNITS[lu], ANGLE_UNITS[au]
-
-        dh = _require(cfg, "dh", where)
-        if not isinstance(dh, Sequence) or isinstance(dh, str) or len(dh) == 0:
-            raise ConfigError(f"{where}: dh must be a non-empty list of rows, got {dh!r}")
-        rows = []
-        for i, row in enumerate(dh, start=1):
-            rw = f"{where}: dh row {i}"
-            if not isinstance(row, Mapping):
-                raise ConfigError(f"{rw} = {row!r}: expected a mapping with {ROW_KEYS}")
-            _reject_unknown(row, set(ROW_KEYS), rw)
-            vals = {k: _number(_require(row, k, rw), f"{rw}.{k}") for k in ROW_KEYS}
-            rows.append((vals["alpha"] * as_, vals["a"] * ls, vals["theta"] * as_, vals["d"] * ls))
-
-        joints_cfg = _require(cfg, "joints", where)
-        joints = []
-        seen: set[str] = set()
-        for j, jc in enumerate(joints_cfg, start=1):
-            jw = f"{where}: joint {j}"
-            if not isinstance(jc, Mapping):
-                raise ConfigError(f"{jw} = {jc!r}: expected a mapping")
-            _reject_unknown(jc, JOINT_KEYS, jw)
-            jname = str(_require(jc, "name", jw))
-            jw = f"{where}: joint '{jname}'"
-            if jname in seen:
-                raise ConfigError(f"{jw}: duplicate joint name")
-            seen.add(jname)
-            row = _require(jc, "row", jw)
-            if isinstance(row, bool) or not isinstance(row, int) or not 1 <= row <= len(rows):
-                raise ConfigError(f"{jw}.row = {row!r}: expected a D-H row number 1..{len(rows)}")
-            param = _require(jc, "param", jw)
-            if param not in JOINT_PARAMS:
-                raise ConfigError(f"{jw}.param = {param!r}; expected one of {JOINT_PARAMS}")
-            scale = as_ if param == "theta" else ls
-            rng = _require(jc, "range", jw)
-            if not isinstance(rng, Sequence) or isinstance(rng, str) or len(rng) != 2:
-                raise ConfigError(f"{jw}.range = {rng!r}: expected [lower, upper]")
-            lo, hi = (_number(v, f"{jw}.range") * scale for v in rng)
-            if not lo < hi:
-                raise ConfigError(f"{jw}.range = {list(rng)!r}: lower must be below upper")
-            locked = jc.get("locked")
-            if locked is not None:
-                locked = _number(locked, f"{jw}.locked") * scale
-                if not lo <= locked <= hi:
-                    raise ConfigError(f"{jw}.locked = {jc['locked']!r} lies outside range {list(rng)!r}")
-            joints.append(Joint(jname, row - 1, param, lo, hi, locked, str(jc.get("label", ""))))
-        if not joints:
-            raise ConfigError(f"{where}: joints must list at least one joint")
-
-        tool = cfg.get("tool", (0.0, 0.0, 0.0))
-        if not isinstance(tool, Sequence) or isinstance(tool, str) or len(tool) != 3:
-            raise ConfigError(f"{where}: tool = {tool!r}: expected [x, y, z] in the last frame")
-        tool = [_number(v, f"{where}: tool") * ls for v in tool]
-        depth = cfg.get("preview_depth")
-        if depth is not None:
-            depth = _number(depth, f"{where}: preview_depth") * ls
-            if depth <= 0:
-                raise ConfigError(f"{where}: preview_depth = {cfg['preview_depth']!r}: must be > 0")
-
-        n_frames = len(rows) + 2
-        bodies = []
-        for bname, bc in (cfg.get("bodies") or {}).items():
-            bw = f"{where}: bodies.{bname}"
-            _reject_unknown(bc, BODY_KEYS, bw)
-            ends = []
-            for key in ("start", "end"):
-                pc = _require(bc, key, bw)
-                _reject_unknown(pc, POINT_KEYS, f"{bw}.{key}")
-                frame = _require(pc, "frame", f"{bw}.{key}")
-                if frame != "tool" and (
-                    isinstance(frame, bool) or not isinstance(frame, int) or not 0 <= frame <= len(rows)
-                ):
-                    raise ConfigError(f"{bw}.{key}.frame = {frame!r}: expected 0..{len(rows)} or 'tool'")
-                frame = n_frames - 1 if frame == "tool" else frame
-                ends.append(PointSpec(frame, _number(pc.get("along_z", 0.0), f"{bw}.{key}.along_z") * ls))
-            radius = _number(_require(bc, "radius", bw), f"{bw}.radius") * ls
-            skip = _number(bc.get("tunnel_skip_end", 0.0), f"{bw}.tunnel_skip_end") * ls
-            if radius < 0 or skip < 0:
-                raise ConfigError(f"{bw}: radius and tunnel_skip_end must be >= 0")
-            bodies.append(Capsule(str(bname), ends[0], ends[1], radius, skip))
-        names = {b.name for b in bodies}
-        pairs = []
-        for pair in cfg.get("self_pairs") or []:
-            if len(pair) != 2 or not set(pair) <= names:
-                raise ConfigError(f"{where}: self_pairs entry {list(pair)!r} must name two bodies of {sorted(names)}")
-            pairs.append(tuple(pair))
-        return cls(name, convention, rows, joints, tool, depth, bodies, pairs)
 
     # ------------------------------------------------------------------ facts
     @property
@@ -390,12 +254,57 @@ class Boom:
         return self.point(frames, body.start), self.point(frames, body.end)
 
 
+    # ------------------------------------------------------------------ Jacobians
+    def _axis_layout(self) -> tuple[list[int], list[bool]]:
+        """Per joint: the index in :meth:`frames` of the frame holding its axis, and whether the
+        axis is that frame's x (a link extension ``a``) rather than its z.
+
+        Modified D-H (``RotX(alpha) TransX(a) RotZ(theta) TransZ(d)``): theta and d act along z of
+        the frame after the row, ``a`` along x of the frame before it. Standard D-H
+        (``RotZ(theta) TransZ(d) TransX(a) RotX(alpha)``): theta and d act along z of the frame
+        before the row, ``a`` along x of the frame after it."""
+        frame, along_x = [], []
+        for j in self.joints:
+            after = j.row + 1
+            if self.convention == "modified":
+                frame.append(j.row if j.param == "a" else after)
+            else:
+                frame.append(after if j.param == "a" else j.row)
+            along_x.append(j.param == "a")
+        return frame, along_x
+
+    def joint_axes(self, frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Unit axis ``(..., n_joints, 3)`` of each joint and a point ``(..., n_joints, 3)`` on it."""
+        index, along_x = self._axis_layout()
+        F = frames[..., index, :3, :]
+        use_x = torch.tensor(along_x, device=frames.device).unsqueeze(-1)
+        return torch.where(use_x, F[..., 0], F[..., 2]), F[..., 3]
+
+    def point_jacobian(self, frames: torch.Tensor, point: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Geometric Jacobian of a point ``(..., 3)`` moving with the tool: linear ``(..., 3, n_joints)``
+        (revolute column ``u x (p - o)``, prismatic column ``u``) and angular (``u`` or 0), from one
+        forward pass: no autograd, so it serves inside solvers' inner loops."""
+        axis, origin = self.joint_axes(frames)
+        revolute = torch.tensor([j.revolute for j in self.joints], device=frames.device).unsqueeze(-1)
+        swept = torch.linalg.cross(axis, point.unsqueeze(-2) - origin, dim=-1)
+        linear = torch.where(revolute, swept, axis)
+        angular = torch.where(revolute, axis, torch.zeros_like(axis))
+        return linear.transpose(-1, -2), angular.transpose(-1, -2)
+
+    def pose6_jacobian(self, frames: torch.Tensor, depth: float | None = None) -> torch.Tensor:
+        """``d pose6 / d q``: ``(..., 6, n_joints)``, the collar rows then the preview rows
+        (``p' = p + D z``, so its rows add ``D (w x z)``)."""
+        depth = self.preview_depth if depth is None else depth
+        p, z = self.tool_pose_from_frames(frames)
+        linear, angular = self.point_jacobian(frames, p)
+        turn = torch.linalg.cross(angular, z.unsqueeze(-1).expand_as(angular), dim=-2)
+        return torch.cat([linear, linear + depth * turn], dim=-2)
+
+
 def pose_errors(pose_hat: torch.Tensor, pose: torch.Tensor) -> dict[str, torch.Tensor]:
     """Spec section 4: start, preview and hole-seeking error (m), direction error (rad)."""
     e_s = torch.linalg.vector_norm(pose_hat[..., :3] - pose[..., :3], dim=-1)
     e_p = torch.linalg.vector_norm(pose_hat[..., 3:] - pose[..., 3:], dim=-1)
     u = pose_hat[..., 3:] - pose_hat[..., :3]
     v = pose[..., 3:] - pose[..., :3]
-    # atan2(|u x v|, u.v) stays accurate for the small angles that matter here, unlike arccos.
-    angle = torch.atan2(torch.linalg.vector_norm(torch.cross(u, v, dim=-1), dim=-1), (u * v).sum(-1))
-    return {"start": e_s, "preview": e_p, "hole": 0.5 * (e_s + e_p), "direction": angle}
+    return {"start": e_s, "preview": e_p, "hole": 0.5 * (e_s + e_p), "direction": angle_between(u, v)}

@@ -15,15 +15,9 @@ from dataclasses import dataclass
 import torch
 
 from pipeline.core.errors import ConfigError
+from pipeline.geometry.rotations import safe_norm
 
 SURFACES = ("wall", "ground", "arch")
-
-
-def safe_norm(x: torch.Tensor, dim: int = -1) -> torch.Tensor:
-    """Euclidean norm whose gradient is 0 (not NaN) at the origin."""
-    sq = (x * x).sum(dim)
-    pos = sq > 0
-    return torch.where(pos, torch.sqrt(torch.where(pos, sq, torch.ones_like(sq))), torch.zeros_like(sq))
 
 
 def _signed_hypot(u: torch.Tensor, v: torch.Tensor, sign_of: torch.Tensor) -> torch.Tensor:

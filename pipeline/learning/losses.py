@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from pipeline.core.errors import ConfigError
-from pipeline.geometry.collision import KINDS
+from pipeline.geometry.collision import SAFETY_KINDS
 
 POSE_LOSSES = ("mse", "norm")
 
@@ -31,9 +31,9 @@ def pose_loss(pose_hat: torch.Tensor, pose: torch.Tensor, kind: str = "mse") -> 
 
 def safety_terms(penalties: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     """Eqs. 14-15: the mean hinge penalty of each kind over the batch."""
-    return {f"l_{k}": penalties[k].mean() for k in KINDS}
+    return {f"l_{k}": penalties[k].mean() for k in SAFETY_KINDS}
 
 
 def total_loss(terms: dict[str, torch.Tensor], lam: float, mu: float) -> torch.Tensor:
     """Eq. 16: ``lam * l_pos + mu * (l_self + l_wall + l_ground + l_arch)``."""
-    return lam * terms["l_pos"] + mu * sum(terms[f"l_{k}"] for k in KINDS)
+    return lam * terms["l_pos"] + mu * sum(terms[f"l_{k}"] for k in SAFETY_KINDS)

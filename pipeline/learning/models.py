@@ -8,6 +8,9 @@ nothing else to run.
 
 from __future__ import annotations
 
+import pickle
+import zipfile
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
@@ -15,9 +18,24 @@ from torch import nn
 
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.core.io import atomic_write
+from pipeline.core.settings import parse, rule
 from pipeline.geometry.kinematics import Boom
 
 ACTIVATIONS = {"gelu": nn.GELU, "relu": nn.ReLU, "silu": nn.SiLU, "tanh": nn.Tanh}
+CHECKPOINT_KEYS = ("state_dict", "hparams")
+
+
+@dataclass(frozen=True)
+class ModelSettings:
+    """The ``model`` config group."""
+
+    width: int = field(metadata=rule(ge=1))
+    depth: int = field(metadata=rule(ge=1))
+    activation: str = field(default="gelu", metadata=rule(choices=sorted(ACTIVATIONS)))
+
+    @classmethod
+    def from_config(cls, node) -> ModelSettings:
+        return parse(cls, node, "model")
 
 
 class IKNet(nn.Module):
@@ -62,6 +80,7 @@ class IKNet(nn.Module):
 
 
 def build_model(boom: Boom, in_mean, in_std, width: int, depth: int, activation: str) -> IKNet:
+    """A fresh network for ``boom`` whose inputs are standardised by ``in_mean`` / ``in_std``."""
     lo, hi = boom.limits(torch.float32)
     return IKNet(lo, hi, torch.as_tensor(in_mean), torch.as_tensor(in_std), width, depth, activation)
 
@@ -79,16 +98,40 @@ def save_checkpoint(path: Path, model: IKNet, boom_cfg: dict, extra: dict) -> No
     atomic_write(path, lambda tmp: torch.save(payload, tmp))
 
 
+def _rebuild_hint(path: Path) -> str:
+    return f"rebuild it with `python -m pipeline.train method={path.stem}` (or `dvc repro train@{path.stem}`)"
+
+
 def load_checkpoint(path: str | Path, map_location="cpu") -> tuple[IKNet, dict]:
-    """The network (eval mode) and the checkpoint's metadata (boom config, method, ...)."""
+    """The network (eval mode) and the checkpoint's metadata (boom config, method, ...).
+
+    A missing, truncated or foreign file is an :class:`InputError` naming the file and how to
+    rebuild it, not a bare ``EOFError`` / ``KeyError`` from deep inside torch."""
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"{path}: no such model checkpoint (train it with python -m pipeline.train)")
-    payload = torch.load(path, map_location=map_location, weights_only=False)
+        raise InputError(f"{path}: no such model checkpoint; {_rebuild_hint(path)}")
+    try:
+        payload = torch.load(path, map_location=map_location, weights_only=False)
+    except (EOFError, OSError, RuntimeError, pickle.UnpicklingError, zipfile.BadZipFile, ValueError) as exc:
+        raise InputError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {exc}); "
+                         f"{_rebuild_hint(path)}") from None
+    missing = [k for k in CHECKPOINT_KEYS if not isinstance(payload, dict) or k not in payload]
+    if missing:
+        raise InputError(f"{path}: not an IK network checkpoint (missing {missing}); {_rebuild_hint(path)}")
     sd = payload["state_dict"]
-    model = IKNet(
-        sd["lower"], sd["lower"] + sd["span"], sd["in_mean"], sd["in_std"], **payload["hparams"]
-    )
-    model.load_state_dict(sd)
+    try:
+        model = IKNet(sd["lower"], sd["lower"] + sd["span"], sd["in_mean"], sd["in_std"], **payload["hparams"])
+        model.load_state_dict(sd)
+    except (KeyError, RuntimeError, TypeError) as exc:
+        raise InputError(f"{path}: weights do not fit the network they describe ({exc}); "
+                         f"{_rebuild_hint(path)}") from None
     model.eval()
     return model, {k: v for k, v in payload.items() if k != "state_dict"}
+
+
+def check_network_fits(model: IKNet, boom: Boom, source: str) -> IKNet:
+    """The one joint-count check between a network and a boom."""
+    if model.n_out != boom.n_joints:
+        raise InputError(f"{source}: the network outputs {model.n_out} joints; boom '{boom.name}' has "
+                         f"{boom.n_joints} {boom.joint_names}")
+    return model

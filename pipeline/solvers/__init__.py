@@ -10,13 +10,13 @@ from pipeline.core.errors import ConfigError
 from pipeline.geometry.kinematics import Boom
 from pipeline.solvers.base import FrameTargets, HoleTargets, NetworkSolver, Solver, SolveResult
 from pipeline.solvers.ga import GAParams, GeneticIK
-from pipeline.solvers.nm import LevenbergMarquardt
+from pipeline.solvers.nm import NMSolver
 from pipeline.solvers.pso import ParticleSwarm, params_for
 from pipeline.solvers.rbf import RBFSolver
 
 __all__ = ["FrameTargets", "HoleTargets", "Solver", "SolveResult", "build_solver"]
 
-KINDS = ("network", "nm", "rbf", "pso", "ga")
+SOLVER_KINDS = ("network", "nm", "rbf", "pso", "ga")
 
 
 def build_solver(name: str, spec: Mapping, boom: Boom, models_dir: Path, specs: Mapping | None = None) -> Solver:
@@ -26,24 +26,21 @@ def build_solver(name: str, spec: Mapping, boom: Boom, models_dir: Path, specs: 
     starts from another entry of ``specs`` (e.g. a network) instead of the home pose."""
     spec = dict(spec)
     kind = spec.pop("kind", None)
-    if kind not in KINDS:
-        raise ConfigError(f"benchmark.solvers.{name}.kind = {kind!r}: expected one of {list(KINDS)}")
+    if kind not in SOLVER_KINDS:
+        raise ConfigError(f"benchmark.solvers.{name}.kind = {kind!r}: expected one of {list(SOLVER_KINDS)}")
     try:
         if kind == "network":
-            from pipeline.learning.models import load_checkpoint
+            from pipeline.learning.models import check_network_fits, load_checkpoint
 
             path = Path(models_dir) / f"{spec.pop('network', name)}.pt"
-            model, _ = load_checkpoint(path)
-            if model.n_out != boom.n_joints:
-                raise ConfigError(f"{path} outputs {model.n_out} joints; boom '{boom.name}' has {boom.n_joints}")
-            return NetworkSolver(boom, model, name)
+            return NetworkSolver(boom, check_network_fits(load_checkpoint(path)[0], boom, str(path)), name)
         if kind == "nm":
             init = spec.pop("init", None)
             if init is not None:
                 if specs is None or init not in specs:
                     raise ConfigError(f"benchmark.solvers.{name}.init = {init!r}: no solver of that name")
                 spec["init"] = build_solver(init, specs[init], boom, models_dir, specs)
-            return LevenbergMarquardt(boom, name=name, **spec)
+            return NMSolver(boom, name=name, **spec)
         if kind == "rbf":
             return RBFSolver(boom, name=name, **spec)
         if kind == "pso":

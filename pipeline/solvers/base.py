@@ -20,7 +20,8 @@ from dataclasses import dataclass
 import torch
 
 from pipeline.core.errors import ConfigError, InputError
-from pipeline.geometry.kinematics import Boom
+from pipeline.geometry.kinematics import Boom, pose_errors
+from pipeline.geometry.rotations import rotation_angle
 
 
 def tool_transform(boom: Boom, q: torch.Tensor) -> torch.Tensor:
@@ -31,15 +32,6 @@ def tool_transform(boom: Boom, q: torch.Tensor) -> torch.Tensor:
 def _against(x: torch.Tensor, T: torch.Tensor) -> torch.Tensor:
     """Reshape per-target values ``(B, *rest)`` to broadcast against ``T (B, ..., 4, 4)``."""
     return x.reshape(x.shape[0], *([1] * (T.ndim - 3)), *x.shape[1:])
-
-
-def rotation_angle(R_hat: torch.Tensor, R: torch.Tensor) -> torch.Tensor:
-    """Angle (rad) of the rotation taking ``R`` to ``R_hat``; atan2 keeps small angles exact."""
-    M = R.transpose(-1, -2) @ R_hat
-    cos = 0.5 * (M.diagonal(dim1=-2, dim2=-1).sum(-1) - 1.0)
-    skew = M - M.transpose(-1, -2)
-    sin = 0.5 * torch.stack([skew[..., 2, 1], skew[..., 0, 2], skew[..., 1, 0]], -1).norm(dim=-1)
-    return torch.atan2(sin, cos)
 
 
 @dataclass(frozen=True)
@@ -68,15 +60,12 @@ class HoleTargets:
         return HoleTargets(self.pose[index], self.depth)
 
     def errors(self, T: torch.Tensor) -> dict[str, torch.Tensor]:
-        """Spec section 4 errors (m, rad) of tool frames ``T``: position = collar error,
-        orientation = direction error, plus preview and hole-seeking error."""
+        """Spec section 4 errors (m, rad) of tool frames ``T`` (:func:`pose_errors`): position =
+        collar error, orientation = direction error, plus preview and hole-seeking error."""
         p, z = T[..., :3, 3], T[..., :3, 2]
-        target = _against(self.pose.to(T), T)
-        start = (p - target[..., :3]).norm(dim=-1)
-        preview = (p + self.depth * z - target[..., 3:]).norm(dim=-1)
-        v = target[..., 3:] - target[..., :3]
-        direction = torch.atan2(torch.linalg.cross(z, v.expand_as(z)).norm(dim=-1), (z * v).sum(-1))
-        return {"position": start, "orientation": direction, "preview": preview, "hole": 0.5 * (start + preview)}
+        err = pose_errors(torch.cat([p, p + self.depth * z], dim=-1), _against(self.pose.to(T), T))
+        return {"position": err["start"], "orientation": err["direction"], "preview": err["preview"],
+                "hole": err["hole"]}
 
     def residual(self, T: torch.Tensor) -> torch.Tensor:
         """The 6 equations of paper 000's NM: ``pose6(q) - P`` (m)."""

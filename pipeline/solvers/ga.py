@@ -93,7 +93,7 @@ class GeneticIK(Solver):
         ints = (genes.reshape(*genes.shape[:-1], -1, bits).double() * weights).sum(-1)
         return lo + (hi - lo) * ints / (2**bits - 1)
 
-    def run(self, targets: Targets, lo: torch.Tensor, hi: torch.Tensor, g: torch.Generator):
+    def evolve(self, targets: Targets, lo: torch.Tensor, hi: torch.Tensor, g: torch.Generator):
         """One GA per row: target ``k`` searched in the box ``lo[k]..hi[k]``. Returns best joints
         ``(K, n)`` and their objective ``(K,)``."""
         p = self.p
@@ -172,7 +172,7 @@ class GeneticIK(Solver):
         g = torch.Generator().manual_seed(self.p.seed)
         B, n = len(targets), self.space.n
         if not self.p.decomposition:
-            x, _ = self.run(targets, self.space.lower.expand(B, n), self.space.upper.expand(B, n), g)
+            x, _ = self.evolve(targets, self.space.lower.expand(B, n), self.space.upper.expand(B, n), g)
             self.level, self.accepted = torch.full((B,), n), torch.ones(B, dtype=torch.bool)
             return self.space.full(x), torch.full((B,), self.p.generations)
         pos = targets.position
@@ -190,7 +190,7 @@ class GeneticIK(Solver):
             if len(pairs) == 0:
                 continue
             t_idx, s_idx = pairs[:, 0], pairs[:, 1]
-            x, e = self.run(targets.subset(t_idx), lo[s_idx], hi[s_idx], g)
+            x, e = self.evolve(targets.subset(t_idx), lo[s_idx], hi[s_idx], g)
             # best pair per target (scatter-min over the pairs of each target)
             e_best = torch.full((B,), math.inf, dtype=torch.float64).scatter_reduce(0, t_idx, e, "amin")
             winner = e == e_best[t_idx]

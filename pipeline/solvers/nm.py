@@ -1,4 +1,4 @@
-"""Numerical IK (paper 000's "NM"): Newton / Levenberg-Marquardt on the pose residual.
+"""Paper 000's numerical method ("NM"), implemented as Levenberg-Marquardt on the pose residual.
 
 Batched over targets: every target keeps its own damping and stops on its own. Joint limits
 hold by projection (each step is clamped into the ranges). Two variants:
@@ -7,7 +7,8 @@ hold by projection (each step is clamped into the ranges). Two variants:
   among the many solutions of 6 equations in 8 unknowns;
 * ``couplings``: linear equations between joints appended to the residual, as paper 000 adds
   two to remove the redundancy (its theta2 - theta4 = -180 deg and theta5 + theta1 = -90 deg are
-  written in its own joint zeros; ``conf/solver/nm_coupled.yaml`` gives their jumbo8 equivalent).
+  written in its own joint zeros; ``solvers.nm_coupled`` in ``conf/benchmark/default.yaml`` gives
+  their jumbo8 equivalent).
 """
 
 from __future__ import annotations
@@ -44,8 +45,8 @@ class Couplings:
         return x @ self.A.T.to(x) - self.b.to(x)
 
 
-class LevenbergMarquardt(Solver):
-    """Damped Newton on ``r(q) = [pose residual, couplings]`` with projected joint limits."""
+class NMSolver(Solver):
+    """NM: damped Newton (Levenberg-Marquardt) on ``r(q) = [pose residual, couplings]`` with projected joint limits."""
 
     name = "nm"
 

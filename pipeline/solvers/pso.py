@@ -101,86 +101,125 @@ class ParticleSwarm(Solver):
         return self.p.w_pos * err["position"] + self.p.w_ori * err["orientation"], err
 
     def _solve(self, targets: Targets) -> tuple[torch.Tensor, torch.Tensor]:
-        p, space = self.p, self.space
-        g = torch.Generator().manual_seed(p.seed)
-        B, P, n = len(targets), p.population, space.n
-        lo, hi = space.lower, space.upper
-        rand = lambda *shape: torch.rand(*shape, generator=g, dtype=torch.float64)  # noqa: E731
-        vmax = torch.where(space.revolute, p.v_max_revolute, p.v_max_prismatic).double()
-        span = hi - lo
-        vmax = torch.minimum(vmax, span.clamp_min(1e-12))
-        arange_b = torch.arange(B)
-
-        x = space.uniform((B, P), g)
-        v = (2 * rand(B, P, n) - 1) * vmax
-        f, _ = self.fitness(x, targets)
-        pbest, pbest_f = x.clone(), f.clone()
-        improved = torch.zeros(B, P, dtype=torch.bool)
-        pc = torch.full((B, P), p.p0, dtype=torch.float64)  # eq. 19: each particle carries its own p
-        n_elite = max(1, math.ceil(p.elite_frac * P))
-
-        def best():
-            i = pbest_f.argmin(dim=1)
-            return pbest[arange_b, i], pbest_f[arange_b, i]
-
-        gbest, _ = best()
-        _, err = self.fitness(gbest.unsqueeze(1), targets)
-        pos_trace, ori_trace = [err["position"][:, 0]], [err["orientation"][:, 0]]
-        iters = torch.full((B,), p.iterations, dtype=torch.long)
-        done = torch.zeros(B, dtype=torch.bool)
+        p = self.p
+        swarm = _Swarm.start(self, targets, torch.Generator().manual_seed(p.seed))
+        trace = [swarm.best_errors()]
+        iters = torch.full((len(targets),), p.iterations, dtype=torch.long)
+        done = torch.zeros(len(targets), dtype=torch.bool)
         for t in range(1, p.iterations + 1):
-            # inertia: eqs. 17-18 (adaptive) or linearly decreasing
-            if p.adaptive_inertia:
-                w = ((p.w_max - p.w_min) * improved.double().mean(dim=1) + p.w_min)[:, None, None]
-            else:
-                w = p.w_max - (p.w_max - p.w_min) * (t - 1) / max(p.iterations - 1, 1)
-            # eqs. 12-13 with the velocity limit; a particle leaving the ranges is put back on the
-            # bound with its velocity there zeroed
-            v = w * v + p.c1 * rand(B, P, 1) * (pbest - x) + p.c2 * rand(B, P, 1) * (gbest[:, None] - x)
-            v = torch.maximum(torch.minimum(v, vmax), -vmax)
-            x = x + v
-            out = (x < lo) | (x > hi)
-            x, v = space.clamp(x), torch.where(out, torch.zeros_like(v), v)
-            f, _ = self.fitness(x, targets)
-            improved = f < pbest_f
-            pbest = torch.where(improved[..., None], x, pbest)
-            pbest_f = torch.where(improved, f, pbest_f)
-
-            if p.opposition:  # eq. 14 on the elite personal bests, dynamic bounds of the elite group
-                elite_f, idx = pbest_f.topk(n_elite, dim=1, largest=False)
-                elite = torch.gather(pbest, 1, idx[..., None].expand(-1, -1, n))
-                a, b = elite.min(dim=1, keepdim=True).values, elite.max(dim=1, keepdim=True).values
-                k = rand(B, n_elite, 1)
-                opp = k * (a + b) - elite
-                outside = (opp < lo) | (opp > hi)
-                opp = torch.where(outside, a + rand(B, n_elite, n) * (b - a), opp)
-                opp_f, _ = self.fitness(opp, targets)
-                take = opp_f < elite_f
-                new_pb = torch.where(take[..., None], opp, elite)
-                new_f = torch.where(take, opp_f, elite_f)
-                pbest = pbest.scatter(1, idx[..., None].expand(-1, -1, n), new_pb)
-                pbest_f = pbest_f.scatter(1, idx, new_f)
-                improved = improved.scatter(1, idx, torch.gather(improved, 1, idx) | take)
-
-            if p.crossover:  # eqs. 20-21 update p, eq. 15 crossover, eq. 16 keep the better
-                alpha = p.p0 * (1 - t / p.iterations)
-                pc = torch.where(rand(B, P) < p.pr, rand(B, P), alpha * pc)
-                child = torch.where(rand(B, P, n) < pc[..., None], x, pbest)
-                child_f, _ = self.fitness(child, targets)
-                take = child_f < pbest_f
-                pbest = torch.where(take[..., None], child, pbest)
-                pbest_f = torch.where(take, child_f, pbest_f)
-                improved = improved | take
-
-            gbest, _ = best()
-            _, err = self.fitness(gbest.unsqueeze(1), targets)
-            pos_trace.append(err["position"][:, 0])
-            ori_trace.append(err["orientation"][:, 0])
+            swarm.move(self.inertia(swarm, t))
+            if p.opposition:
+                swarm.elite_opposition()
+            if p.crossover:
+                swarm.crossover(t)
+            swarm.update_best()
+            trace.append(swarm.best_errors())
             if p.tol_pos > 0 and p.tol_ori > 0:
-                reached = ~done & (err["position"][:, 0] <= p.tol_pos) & (err["orientation"][:, 0] <= p.tol_ori)
+                reached = ~done & (trace[-1][0] <= p.tol_pos) & (trace[-1][1] <= p.tol_ori)
                 iters = torch.where(reached, torch.full_like(iters, t), iters)
                 done = done | reached
                 if done.all():
                     break
-        self.trace = SwarmTrace(torch.stack(pos_trace), torch.stack(ori_trace))
-        return space.full(gbest), iters
+        self.trace = SwarmTrace(torch.stack([e[0] for e in trace]), torch.stack([e[1] for e in trace]))
+        return self.space.full(swarm.gbest), iters
+
+    def inertia(self, swarm: _Swarm, t: int):
+        """Eqs. 17-18 (adaptive: from the share of particles that improved) or linearly decreasing."""
+        p = self.p
+        if p.adaptive_inertia:
+            return ((p.w_max - p.w_min) * swarm.improved.double().mean(dim=1) + p.w_min)[:, None, None]
+        return p.w_max - (p.w_max - p.w_min) * (t - 1) / max(p.iterations - 1, 1)
+
+
+def keep_better(x: torch.Tensor, f: torch.Tensor, x_new: torch.Tensor, f_new: torch.Tensor):
+    """Element-wise the better of two candidate sets ``(..., n)`` by fitness ``(...)``; also which won."""
+    take = f_new < f
+    return torch.where(take[..., None], x_new, x), torch.where(take, f_new, f), take
+
+
+@dataclass
+class _Swarm:
+    """State of one swarm per target: ``(targets, particles, joints)`` tensors and the steps of
+    eqs. 12-21 on them."""
+
+    solver: ParticleSwarm
+    targets: Targets
+    g: torch.Generator
+    x: torch.Tensor
+    v: torch.Tensor
+    pbest: torch.Tensor
+    pbest_f: torch.Tensor
+    improved: torch.Tensor
+    pc: torch.Tensor  # eq. 19: each particle carries its own crossover probability
+    vmax: torch.Tensor
+    gbest: torch.Tensor
+
+    @classmethod
+    def start(cls, solver: ParticleSwarm, targets: Targets, g: torch.Generator) -> _Swarm:
+        p, space = solver.p, solver.space
+        B, P, n = len(targets), p.population, space.n
+        vmax = torch.where(space.revolute, p.v_max_revolute, p.v_max_prismatic).double()
+        vmax = torch.minimum(vmax, (space.upper - space.lower).clamp_min(1e-12))
+        x = space.uniform((B, P), g)
+        v = (2 * torch.rand(B, P, n, generator=g, dtype=torch.float64) - 1) * vmax
+        f, _ = solver.fitness(x, targets)
+        swarm = cls(solver, targets, g, x, v, x.clone(), f.clone(), torch.zeros(B, P, dtype=torch.bool),
+                    torch.full((B, P), p.p0, dtype=torch.float64), vmax, x[:, 0])
+        swarm.update_best()
+        return swarm
+
+    def rand(self, *shape: int) -> torch.Tensor:
+        return torch.rand(*shape, generator=self.g, dtype=torch.float64)
+
+    def move(self, w) -> None:
+        """Eqs. 12-13 with the velocity limit; a particle leaving the ranges is put back on the bound
+        with its velocity there zeroed. Then each personal best keeps the better point."""
+        p, space = self.solver.p, self.solver.space
+        B, P, _ = self.x.shape
+        v = (w * self.v + p.c1 * self.rand(B, P, 1) * (self.pbest - self.x)
+             + p.c2 * self.rand(B, P, 1) * (self.gbest[:, None] - self.x))
+        v = torch.maximum(torch.minimum(v, self.vmax), -self.vmax)
+        x = self.x + v
+        out = (x < space.lower) | (x > space.upper)
+        self.x, self.v = space.clamp(x), torch.where(out, torch.zeros_like(v), v)
+        f, _ = self.solver.fitness(self.x, self.targets)
+        self.pbest, self.pbest_f, self.improved = keep_better(self.pbest, self.pbest_f, self.x, f)
+
+    def elite_opposition(self) -> None:
+        """Eq. 14 on the elite personal bests, within the dynamic bounds of the elite group; an
+        opposite point outside the joint ranges is redrawn inside those bounds."""
+        p, space = self.solver.p, self.solver.space
+        B, P, n = self.x.shape
+        n_elite = max(1, math.ceil(p.elite_frac * P))
+        elite_f, idx = self.pbest_f.topk(n_elite, dim=1, largest=False)
+        elite = torch.gather(self.pbest, 1, idx[..., None].expand(-1, -1, n))
+        a, b = elite.min(dim=1, keepdim=True).values, elite.max(dim=1, keepdim=True).values
+        opp = self.rand(B, n_elite, 1) * (a + b) - elite
+        outside = (opp < space.lower) | (opp > space.upper)
+        opp = torch.where(outside, a + self.rand(B, n_elite, n) * (b - a), opp)
+        opp_f, _ = self.solver.fitness(opp, self.targets)
+        new_pb, new_f, take = keep_better(elite, elite_f, opp, opp_f)
+        self.pbest = self.pbest.scatter(1, idx[..., None].expand(-1, -1, n), new_pb)
+        self.pbest_f = self.pbest_f.scatter(1, idx, new_f)
+        self.improved = self.improved.scatter(1, idx, torch.gather(self.improved, 1, idx) | take)
+
+    def crossover(self, t: int) -> None:
+        """Eqs. 20-21 update each particle's probability, eq. 15 crosses it with its personal best,
+        eq. 16 keeps the better."""
+        p = self.solver.p
+        B, P, n = self.x.shape
+        alpha = p.p0 * (1 - t / p.iterations)
+        self.pc = torch.where(self.rand(B, P) < p.pr, self.rand(B, P), alpha * self.pc)
+        child = torch.where(self.rand(B, P, n) < self.pc[..., None], self.x, self.pbest)
+        child_f, _ = self.solver.fitness(child, self.targets)
+        self.pbest, self.pbest_f, take = keep_better(self.pbest, self.pbest_f, child, child_f)
+        self.improved = self.improved | take
+
+    def update_best(self) -> None:
+        i = self.pbest_f.argmin(dim=1)
+        self.gbest = self.pbest[torch.arange(len(i)), i]
+
+    def best_errors(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Position and orientation error of each target's global best."""
+        _, err = self.solver.fitness(self.gbest.unsqueeze(1), self.targets)
+        return err["position"][:, 0], err["orientation"][:, 0]

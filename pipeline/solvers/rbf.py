@@ -21,29 +21,8 @@ import torch
 
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.geometry.kinematics import Boom
+from pipeline.geometry.rotations import align, rpy
 from pipeline.solvers.base import FrameTargets, HoleTargets, JointSpace, Solver, Targets, tool_transform
-
-
-def rpy(R: torch.Tensor) -> torch.Tensor:
-    """Roll, pitch, yaw ``(..., 3)`` of ``R = Rz(yaw) Ry(pitch) Rx(roll)``."""
-    roll = torch.atan2(R[..., 2, 1], R[..., 2, 2])
-    pitch = torch.atan2(-R[..., 2, 0], torch.hypot(R[..., 2, 1], R[..., 2, 2]))
-    yaw = torch.atan2(R[..., 1, 0], R[..., 0, 0])
-    return torch.stack([roll, pitch, yaw], dim=-1)
-
-
-def align(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Smallest rotation ``(..., 3, 3)`` taking unit vector ``a`` onto unit vector ``b`` (Rodrigues);
-    ``a`` and ``b`` must not be opposite (holes lie within a cone around the home direction)."""
-    v = torch.linalg.cross(a.expand_as(b), b)
-    c = (a * b).sum(-1)
-    if (c <= -1 + 1e-9).any():
-        raise InputError("hole direction opposite to the tool's home drilling axis: no unique rotation")
-    K = torch.zeros(*v.shape[:-1], 3, 3, dtype=v.dtype)
-    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    K = K - K.transpose(-1, -2)
-    eye = torch.eye(3, dtype=v.dtype).expand_as(K)
-    return eye + K + (K @ K) / (1 + c)[..., None, None]
 
 
 class MinMax:

@@ -1,21 +1,199 @@
-"""MLflow: one store (an absolute SQLite file by default), one experiment, flat params."""
+"""MLflow for the stages: one store, one experiment, and one context manager per stage run.
+
+Every stage logs through :func:`stage_run`, which is the one place that
+
+* prepares the store: an absolute URI (so Hydra job folders and DVC temporary copies share one
+  store), the SQLite schema created under a file lock (parallel first runs never race), a fast,
+  named failure when the store or artifact folder cannot be written;
+* tags the experiment ``mlflow.experimentKind = custom_model_development`` so MLflow 3's UI opens
+  on the runs, not on its GenAI overview;
+* marks RUNNING runs of dead processes on this host as KILLED (what SIGKILL leaves behind);
+* decides how a run ends: FINISHED, FAILED with the error as a tag, or KILLED on Ctrl-C / SIGTERM
+  (the stage then exits with 128 + the signal number, as a killed process would).
+
+With tracking off it yields a :class:`StageRun` whose logging calls do nothing, so stages never
+branch on tracking and never import MLflow themselves.
+"""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
+import math
 import os
-from collections.abc import Mapping
+import signal
+import socket
+import threading
+import urllib.error
+import urllib.request
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
-import mlflow
-from mlflow.tracking import MlflowClient
-
 from pipeline.core.config import main_root
+from pipeline.core.errors import ConfigError
+from pipeline.core.io import file_md5, require_writable
 
 log = logging.getLogger(__name__)
 
+EXPERIMENT_KIND = {"mlflow.experimentKind": "custom_model_development"}
+END_REASON = "run.end_reason"
 
+
+# ---------------------------------------------------------------------------------------- settings
+def resolve_uri(uri: str | None) -> str:
+    """The absolute tracking URI: ``uri``, else ``$MLFLOW_TRACKING_URI``, else the SQLite file
+    ``mlflow.db`` in the main checkout. A relative SQLite path is taken from the main checkout."""
+    uri = uri or os.environ.get("MLFLOW_TRACKING_URI") or "sqlite:///mlflow.db"
+    if uri.startswith("sqlite:///"):
+        path = Path(uri.removeprefix("sqlite:///"))
+        if not path.is_absolute():
+            path = main_root() / path
+        return f"sqlite:///{path}"
+    return uri
+
+
+@dataclass(frozen=True)
+class TrackingSettings:
+    """The ``tracking`` config group, validated and made absolute."""
+
+    enabled: bool
+    uri: str
+    experiment: str
+    artifact_root: Path
+    system_metrics: bool = False
+    register_models: bool = False  # trained networks into the Model Registry as <experiment>-<method>
+
+    @classmethod
+    def from_config(cls, node: Mapping) -> TrackingSettings:
+        enabled = node.get("enabled", True)
+        if not isinstance(enabled, bool):
+            raise ConfigError(f"tracking.enabled = {enabled!r}: expected true or false")
+        experiment = node.get("experiment")
+        if not isinstance(experiment, str) or not experiment.strip():
+            raise ConfigError(f"tracking.experiment = {experiment!r}: expected a non-empty name")
+        root = Path(node.get("artifact_root") or "mlartifacts")
+        system_metrics = node.get("system_metrics", False)
+        if not isinstance(system_metrics, bool):
+            raise ConfigError(f"tracking.system_metrics = {system_metrics!r}: expected true or false")
+        register = node.get("register_models", False)
+        if not isinstance(register, bool):
+            raise ConfigError(f"tracking.register_models = {register!r}: expected true or false")
+        return cls(enabled, resolve_uri(node.get("uri")), experiment,
+                   root if root.is_absolute() else main_root() / root, system_metrics, register)
+
+
+# ---------------------------------------------------------------------------------------- store
+def check_store(settings: TrackingSettings) -> None:
+    """Fail in milliseconds, with the setting named, where MLflow would retry for minutes."""
+    uri = settings.uri
+    if uri.startswith("sqlite:///"):
+        db = Path(uri.removeprefix("sqlite:///"))
+        require_writable(db.parent, "tracking.uri (its folder)", ConfigError)
+        if db.exists() and not os.access(db, os.R_OK | os.W_OK):
+            raise ConfigError(f"tracking.uri = {uri}: the database file is not writable")
+    elif uri.startswith(("http://", "https://")):
+        try:
+            urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=5).close()
+        except (urllib.error.URLError, OSError) as exc:
+            raise ConfigError(f"tracking.uri = {uri}: no MLflow server answers there ({exc}); start one, "
+                              "or set tracking.uri=null for the local SQLite store") from None
+    if not str(settings.artifact_root).startswith(("s3:", "gs:", "http:", "https:")):
+        require_writable(settings.artifact_root, "tracking.artifact_root", ConfigError)
+
+
+def prepare_store(settings: TrackingSettings) -> str:
+    """Point MLflow at the store, create or migrate it once, make sure the experiment exists with
+    its kind tag; returns the experiment id."""
+    import mlflow
+    from filelock import FileLock
+    from mlflow.tracking import MlflowClient
+
+    check_store(settings)
+    mlflow.set_tracking_uri(settings.uri)
+    lock = (FileLock(settings.uri.removeprefix("sqlite:///") + ".lock", timeout=300)
+            if settings.uri.startswith("sqlite:///") else contextlib.nullcontext())
+    with lock:  # schema creation, migration and experiment creation, one process at a time
+        client = MlflowClient(settings.uri)
+        exp = client.get_experiment_by_name(settings.experiment)
+        if exp is None:
+            exp_id = client.create_experiment(settings.experiment, artifact_location=settings.artifact_root.as_uri(),
+                                              tags=EXPERIMENT_KIND)
+        else:
+            exp_id = exp.experiment_id
+            if exp.tags.get("mlflow.experimentKind") is None:
+                client.set_experiment_tag(exp_id, *next(iter(EXPERIMENT_KIND.items())))
+    mlflow.set_experiment(experiment_id=exp_id)
+    return exp_id
+
+
+def process_tags() -> dict[str, str]:
+    """Host, pid and the process's start time: enough to tell later whether the process still lives."""
+    import psutil
+
+    pid = os.getpid()
+    return {"host": socket.gethostname(), "pid": str(pid), "pid_start": f"{psutil.Process(pid).create_time():.3f}"}
+
+
+def _process_alive(pid: int, start: str | None) -> bool:
+    import psutil
+
+    try:
+        proc = psutil.Process(pid)
+        return start is None or abs(proc.create_time() - float(start)) < 0.01  # a reused pid is another process
+    except (psutil.NoSuchProcess, ValueError):
+        return False
+
+
+def mark_stale_runs(experiment_id: str) -> list[str]:
+    """End as KILLED the RUNNING runs that a process of this host started and that is gone (SIGKILL,
+    power loss); returns their ids."""
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient()
+    host = socket.gethostname()
+    runs = client.search_runs([experiment_id], f"attributes.status = 'RUNNING' and tags.host = '{host}'",
+                              max_results=1000)
+    stale = []
+    for run in runs:
+        pid = run.data.tags.get("pid")
+        if pid and pid.isdigit() and not _process_alive(int(pid), run.data.tags.get("pid_start")):
+            client.set_tag(run.info.run_id, END_REASON, f"process {pid} on {host} ended without closing the run")
+            client.set_terminated(run.info.run_id, "KILLED")
+            stale.append(run.info.run_id)
+    if stale:
+        log.warning("marked %d stale RUNNING run(s) of dead processes as KILLED: %s", len(stale), stale)
+    return stale
+
+
+# ---------------------------------------------------------------------------------------- signals
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread so that runs end and temporary files are removed."""
+
+    def __init__(self, signum: int):
+        super().__init__(f"received {signal.Signals(signum).name}")
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def terminate_as_interrupt() -> Iterator[None]:
+    """Turn SIGTERM (how ``timeout``, Slurm and Ray stop a job) into :class:`Terminated` while inside."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, _frame):
+        raise Terminated(signum)
+
+    old = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+# ---------------------------------------------------------------------------------------- the run
 def flatten(params: Mapping, prefix: str = "") -> dict[str, str]:
     """``{"a": {"b": 1}}`` -> ``{"a.b": "1"}``; lists become JSON text."""
     out: dict[str, str] = {}
@@ -30,95 +208,145 @@ def flatten(params: Mapping, prefix: str = "") -> dict[str, str]:
     return out
 
 
-def resolve_uri(uri: str | None) -> str:
-    """The absolute tracking URI: ``uri``, else ``$MLFLOW_TRACKING_URI``, else the SQLite file
-    ``mlflow.db`` in the main checkout. A relative SQLite path is taken from the main checkout."""
-    uri = uri or os.environ.get("MLFLOW_TRACKING_URI") or "sqlite:///mlflow.db"
-    if uri.startswith("sqlite:///"):
-        path = Path(uri.removeprefix("sqlite:///"))
-        if not path.is_absolute():
-            path = main_root() / path
-        return f"sqlite:///{path}"
-    return uri
+class StageRun:
+    """Logging calls of one stage run; every call does nothing when tracking is off."""
+
+    def __init__(self, run_id: str | None = None):
+        self.run_id = run_id
+
+    @property
+    def active(self) -> bool:
+        return self.run_id is not None
+
+    def log_params(self, params: Mapping) -> None:
+        if self.active:
+            import mlflow
+
+            items = list(flatten(params).items())
+            for i in range(0, len(items), 100):  # MLflow takes at most 100 params a batch
+                mlflow.log_params(dict(items[i : i + 100]))
+
+    def log_metrics(self, metrics: Mapping, step: int | None = None, prefix: str = "") -> None:
+        """Finite numbers only (MLflow stores NaN, but a dashboard curve through NaN says nothing)."""
+        if self.active:
+            import mlflow
+
+            clean = {f"{prefix}{k}": float(v) for k, v in metrics.items()
+                     if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)}
+            if clean:
+                mlflow.log_metrics(clean, step=step)
+
+    def set_tags(self, tags: Mapping[str, str]) -> None:
+        if self.active:
+            import mlflow
+
+            mlflow.set_tags(dict(tags))
+
+    def log_table(self, df, path: str) -> None:
+        """A DataFrame as an MLflow table artifact (object columns as text, which the viewer needs)."""
+        if self.active:
+            import mlflow
+
+            mlflow.log_table(df.astype({c: str for c in df.columns if df[c].dtype == object}), path)
+
+    def log_figure(self, fig, path: str) -> None:
+        if self.active:
+            import mlflow
+
+            mlflow.log_figure(fig, path)
+
+    def log_text(self, text: str, path: str) -> None:
+        if self.active:
+            import mlflow
+
+            mlflow.log_text(text, path)
+
+    def log_artifact(self, path: str | Path, folder: str | None = None) -> None:
+        if self.active:
+            import mlflow
+
+            if Path(path).is_dir():
+                mlflow.log_artifacts(str(path), folder)
+            else:
+                mlflow.log_artifact(str(path), artifact_path=folder)
+
+    def log_network(self, model, input_example, registered_name: str | None = None) -> None:
+        """The trained network as an MLflow model (MLflow 3 needs an input example), optionally
+        registered in the Model Registry under ``registered_name``."""
+        if self.active:
+            import mlflow.pytorch
+
+            mlflow.pytorch.log_model(model, name="model", input_example=input_example, pip_requirements=["torch"],
+                                     registered_model_name=registered_name)
+
+    def log_dataset(self, df, path: str | Path, context: str, digest: str | None = None) -> None:
+        """A table the run read, as an MLflow dataset input whose digest is the file's MD5, the hash
+        DVC records for it: the runs' Dataset column then names the same data version as dvc.lock."""
+        if self.active:
+            import mlflow
+            import mlflow.data
+
+            path = Path(path)
+            ds = mlflow.data.from_pandas(df, source=str(path), name=path.name, digest=digest or file_md5(path))
+            mlflow.log_input(ds, context=context)
 
 
-def resolve_artifact_root(artifact_root: str | None) -> Path:
-    root = Path(artifact_root) if artifact_root else Path("mlartifacts")
-    return root if root.is_absolute() else main_root() / root
+@contextlib.contextmanager
+def stage_run(settings: TrackingSettings, run_name: str, tags: Mapping[str, str] | None = None,
+              system_metrics: bool = False) -> Iterator[StageRun]:
+    """One MLflow run around a stage's work; how it ends is decided here and nowhere else.
 
+    SIGTERM is turned into an interrupt for the duration, with tracking on or off, so that
+    temporary files of atomic writes are removed and the process exits with 128 + 15."""
+    with terminate_as_interrupt():
+        if not settings.enabled:
+            try:
+                yield StageRun()
+            except Terminated as exc:
+                raise SystemExit(128 + exc.signum) from exc
+            return
+        import mlflow
 
-def setup(uri: str | None, experiment: str, artifact_root: str | None = None) -> str:
-    """Point MLflow at the store and make sure ``experiment`` exists; returns its id.
-
-    Creating the store and the experiment here, before any job logs, is what keeps
-    parallel sweep jobs from racing on a fresh SQLite file. Artifacts go under an
-    absolute ``artifact_root``, so Hydra job folders and DVC temp copies share them.
-    """
-    uri = resolve_uri(uri)
-    if uri.startswith("sqlite:///"):
-        Path(uri.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
-    mlflow.set_tracking_uri(uri)
-    client = MlflowClient(uri)
-    exp = client.get_experiment_by_name(experiment)
-    if exp is None:
-        location = resolve_artifact_root(artifact_root).as_uri()
+        exp_id = prepare_store(settings)
+        mark_stale_runs(exp_id)
+        run = mlflow.start_run(experiment_id=exp_id, run_name=run_name,
+                               tags={**process_tags(), **dict(tags or {})},
+                               log_system_metrics=bool(system_metrics and settings.system_metrics))
+        run_id = run.info.run_id
         try:
-            exp_id = client.create_experiment(experiment, artifact_location=location)
-        except mlflow.exceptions.MlflowException:  # another job created it first
-            exp_id = client.get_experiment_by_name(experiment).experiment_id
-    else:
-        exp_id = exp.experiment_id
-    mlflow.set_experiment(experiment_id=exp_id)
-    return exp_id
+            yield StageRun(run_id)
+        except KeyboardInterrupt as exc:
+            reason = str(exc) or "interrupted (SIGINT / Ctrl-C)"
+            _end(run_id, "KILLED", reason)
+            if isinstance(exc, Terminated):
+                raise SystemExit(128 + exc.signum) from exc
+            raise
+        except BaseException as exc:
+            _end(run_id, "FAILED", f"{type(exc).__name__}: {exc}"[:5000])
+            raise
+        else:
+            _end(run_id, "FINISHED", None)
 
 
-def log_history(history: list[dict[str, float]]) -> None:
-    """Per-step metrics, batched into few calls."""
-    import time
+def _end(run_id: str, status: str, reason: str | None) -> None:
+    import mlflow
 
-    from mlflow.entities import Metric
-
-    now = int(time.time() * 1000)
-    metrics = [
-        Metric(k, float(v), now, int(rec["step"])) for rec in history for k, v in rec.items() if k != "step"
-    ]
-    client = MlflowClient()
-    run_id = mlflow.active_run().info.run_id
-    for i in range(0, len(metrics), 900):
-        client.log_batch(run_id, metrics=metrics[i : i + 900])
+    if reason:
+        with contextlib.suppress(Exception):  # the store itself may be what failed
+            mlflow.set_tag(END_REASON, reason)
+    mlflow.end_run(status)
+    if status != "FINISHED":
+        log.error("MLflow run %s ended %s: %s", run_id, status, reason)
 
 
-def start(**kwargs):
-    """``mlflow.start_run(**kwargs)``: the run of one stage or sweep job."""
-    return mlflow.start_run(**kwargs)
-
-
-def log_params(params: Mapping[str, str]) -> None:
-    items = list(params.items())
-    for i in range(0, len(items), 100):  # MLflow takes at most 100 params a batch
-        mlflow.log_params(dict(items[i : i + 100]))
-
-
-def log_metrics(metrics: Mapping[str, float], prefix: str = "") -> None:
-    mlflow.log_metrics({f"{prefix}{k}": float(v) for k, v in metrics.items() if isinstance(v, (int, float))})
-
-
-def log_artifact(path: str | Path, folder: str | None = None) -> None:
-    mlflow.log_artifact(str(path), artifact_path=folder)
-
-
-def log_training_figure(history, method: str) -> None:
-    import matplotlib.pyplot as plt
-
-    from pipeline.evaluation.plots import training_curves
-
-    fig = training_curves({method: history})
-    mlflow.log_figure(fig, f"figures/training_{method}.png")
-    plt.close(fig)
-
-
-def log_network(model, input_example) -> None:
-    """The trained network as an MLflow model, with an input example (MLflow 3 needs one)."""
-    import mlflow.pytorch
-
-    mlflow.pytorch.log_model(model, name="model", input_example=input_example, pip_requirements=["torch"])
+def log_training_progress(run: StageRun, step: int, steps: int, record: Mapping[str, float], elapsed: float,
+                          method: str, echo: bool) -> None:
+    """Held-out metrics at each evaluation, while training runs (the dashboard draws live curves),
+    and, without a progress bar (under DVC), one line a user can tell from a hang."""
+    run.log_metrics({k: v for k, v in record.items() if k != "step"}, step=step)
+    if echo:
+        done = (step + 1) / steps
+        left = elapsed / done - elapsed if done > 0 else math.nan
+        log.info("train %s: step %d/%d (%.0f %%), loss %.4g, held-out %.2f mm, %.0f s elapsed, ~%.0f s left",
+                 method, step + 1, steps, 100 * done, record.get("loss", math.nan), record.get("val_hole_mm", math.nan),
+                 elapsed, left)

@@ -1,0 +1,143 @@
+"""The hole-set folder (``paths.data/holes``): built together, swapped in whole, verified on read.
+
+``meta.json`` records the MD5 of every table (the hash DVC records too). Readers check a table
+against it, so a folder mixing files of two ``generate`` runs, or a file edited by hand, is
+refused with a message that says how to rebuild it, instead of training on it silently.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import pandas as pd
+import torch
+
+from pipeline.core.errors import ConfigError, InputError
+from pipeline.core.io import file_md5, write_json, write_parquet
+from pipeline.data.holes import HoleSampling, sample_holes, sample_joints
+from pipeline.data.tables import POSE_COLUMNS, check_table, holes_frame, joints_frame
+from pipeline.geometry.collision import SAFETY_KINDS, SafetyModel
+
+REBUILD = "rebuild it with `python -m pipeline.generate` (or `dvc repro generate`)"
+
+
+def build_hole_sets(
+    safety: SafetyModel,
+    sampling: HoleSampling,
+    unsup_size: int,
+    unsup_seed: int,
+    sup_size: int,
+    sup_seed: int,
+    test_size: int,
+    test_seeds: list[int],
+) -> tuple[dict[str, pd.DataFrame], dict]:
+    """All hole tables by file name, and the statistics that go into ``meta.json``."""
+    seeds = [unsup_seed, sup_seed, *test_seeds]
+    if len(set(seeds)) != len(seeds):
+        raise ConfigError(f"holes: seeds must all differ (unsup, sup, test...), got {seeds}")
+    tables: dict[str, pd.DataFrame] = {}
+    train, train_stats = sample_holes(unsup_size, safety, sampling, unsup_seed)
+    tables["train.parquet"] = holes_frame(train)
+    test_stats = []
+    for k, seed in enumerate(test_seeds, start=1):
+        poses, stats = sample_holes(test_size, safety, sampling, seed)
+        tables[f"test_group_{k}.parquet"] = holes_frame(poses)
+        test_stats.append(stats)
+    boom = safety.boom
+    q = sample_joints(sup_size, boom, sup_seed)
+    frames = boom.frames(q)
+    sup = pd.concat([joints_frame(q, boom.joint_names), holes_frame(boom.pose6_from_frames(frames))], axis=1)
+    tables["sup.parquet"] = sup[["hole_id", *boom.joint_names, *POSE_COLUMNS]]
+    violated = safety.violations(safety.clearances_from_frames(frames))
+    any_violation = torch.stack([violated[k] for k in SAFETY_KINDS]).any(dim=0)
+    meta = {
+        "counts": {name: len(df) for name, df in tables.items()},
+        "seeds": {"unsup": unsup_seed, "sup": sup_seed, "test": list(test_seeds)},
+        "unsup_rejection": train_stats,
+        "test_rejection": test_stats,
+        "sup_violation_share": {
+            **{k: float(violated[k].double().mean()) for k in SAFETY_KINDS},
+            "any": float(any_violation.double().mean()),
+        },
+    }
+    return tables, meta
+
+
+def write_hole_sets(tables: dict[str, pd.DataFrame], meta: dict, out_dir: Path) -> list[Path]:
+    """Write every table and ``meta.json`` (with each table's MD5) into a fresh folder beside
+    ``out_dir``, then swap it in: a reader sees the old set, the new set, or (killed between the
+    two renames) no set, never a mix."""
+    out_dir = Path(out_dir)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.new-", dir=out_dir.parent))
+    try:
+        for name, df in tables.items():
+            write_parquet(df, staging / name)
+        meta = {**meta, "files": {name: file_md5(staging / name) for name in tables}}
+        write_json(meta, staging / "meta.json")
+        os.chmod(staging, 0o777 & ~_umask())  # mkdtemp makes 0700
+        old = None
+        if out_dir.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old-", dir=out_dir.parent))
+            os.replace(out_dir, old / out_dir.name)
+        os.replace(staging, out_dir)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return [*(out_dir / name for name in tables), out_dir / "meta.json"]
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def read_meta(holes_dir: Path) -> dict:
+    path = Path(holes_dir) / "meta.json"
+    if not path.is_file():
+        raise InputError(f"{path}: missing, so the hole set cannot be verified; {REBUILD}")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: not valid JSON ({exc}); {REBUILD}") from None
+
+
+def read_hole_table(holes_dir: Path, name: str, columns: list[str] | None = None) -> pd.DataFrame:
+    """Table ``name`` of a hole set, checked against ``meta.json`` and for finite values in
+    ``columns`` (the pose columns by default, joint columns too where asked)."""
+    holes_dir = Path(holes_dir)
+    path = holes_dir / name
+    if not path.is_file():
+        raise InputError(f"{path}: no such hole table; {REBUILD}")
+    expected = read_meta(holes_dir).get("files", {}).get(name)
+    if expected is None:
+        raise InputError(f"{path}: not listed in {holes_dir / 'meta.json'} (written by an older generate); {REBUILD}")
+    actual = file_md5(path)
+    if actual != expected:
+        raise InputError(f"{path}: MD5 {actual} differs from {expected} in meta.json: the folder mixes files of "
+                         f"two generate runs or was edited; {REBUILD}")
+    df = pd.read_parquet(path)
+    check_table(df, columns or POSE_COLUMNS, str(path))
+    return df
+
+
+def read_hole_poses(holes_dir: Path, name: str) -> tuple[pd.DataFrame, torch.Tensor]:
+    """A verified hole table and its ``(n, 6)`` float64 poses."""
+    df = read_hole_table(holes_dir, name)
+    return df, torch.tensor(df[POSE_COLUMNS].to_numpy(dtype="float64"))
+
+
+def read_test_groups(holes_dir: Path) -> dict[int, tuple[pd.DataFrame, torch.Tensor]]:
+    """Every ``test_group_<k>.parquet`` listed in ``meta.json``, by k."""
+    names = sorted((n for n in read_meta(holes_dir).get("files", {}) if n.startswith("test_group_")),
+                   key=lambda n: int(n.removesuffix(".parquet").rsplit("_", 1)[1]))
+    if not names:
+        raise InputError(f"{holes_dir}: no test groups listed in meta.json; {REBUILD}")
+    return {int(n.removesuffix(".parquet").rsplit("_", 1)[1]): read_hole_poses(holes_dir, n) for n in names}
