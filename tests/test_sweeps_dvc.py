@@ -119,23 +119,26 @@ def _copy_checkout(dst: Path) -> None:
 
 
 @pytest.mark.skipif(shutil.which("git") is None, reason="DVC needs git")
-def test_dvc_repro_in_a_copy_then_up_to_date_and_a_param_change_reruns_the_right_stages(tmp_path):
+def test_dvc_repro_of_the_quick_experiment_then_up_to_date_and_a_param_change_reruns_the_right_stages(tmp_path):
+    """The quick experiment as it is (its own paths.data=data/quick), MLflow on, in a copy of the checkout."""
     _copy_checkout(tmp_path)
-    _run([sys.executable, "-m", "pipeline.params", *TINY, "paths.data=data", "tracking.enabled=false"], cwd=tmp_path)
+    _run([sys.executable, "-m", "pipeline.params", *TINY], cwd=tmp_path)
     dvc = [sys.executable, "-m", "dvc"]
     _run([*dvc, "repro"], cwd=tmp_path)
-    for out in ["data/holes/train.parquet", "data/models/sikm.pt", "data/models/cuikm.pt", "data/eval/metrics.json",
-                "data/eval/collisions.csv", "data/report/README.md"]:
-        assert (tmp_path / out).is_file(), out
-    metrics = json.loads((tmp_path / "data/eval/metrics.json").read_text())
+    d = "data/quick"
+    for out in ["holes/train.parquet", "models/sikm.pt", "models/cuikm.pt", "eval/metrics.json",
+                "eval/collisions.csv", "report/README.md"]:
+        assert (tmp_path / d / out).is_file(), out
+    metrics = json.loads((tmp_path / d / "eval/metrics.json").read_text())
     assert set(metrics) == {"sikm", "uikm", "cuikm"}
-    outs = {p: (tmp_path / p).stat().st_mtime_ns for p in ["data/holes/meta.json", "data/models/sikm.pt",
-                                                         "data/models/uikm.pt", "data/models/cuikm.pt",
-                                                         "data/eval/metrics.json", "data/report/README.md"]}
+    outs = {p: (tmp_path / d / p).stat().st_mtime_ns for p in ["holes/meta.json", "models/sikm.pt", "models/uikm.pt",
+                                                             "models/cuikm.pt", "eval/metrics.json",
+                                                             "report/README.md"]}
     _run([*dvc, "repro"], cwd=tmp_path)
-    assert {p: (tmp_path / p).stat().st_mtime_ns for p in outs} == outs  # nothing was rebuilt
+    assert {p: (tmp_path / d / p).stat().st_mtime_ns for p in outs} == outs  # nothing was rebuilt
     status = _run([*dvc, "status", "--json"], cwd=tmp_path)
     assert json.loads(status.stdout) == {}
+    _check_dataset_digests_are_dvc_hashes(tmp_path, d)
 
     params = yaml.safe_load((tmp_path / "params.yaml").read_text())
     params["baselines"]["uikm"]["lam"] = 2.0
@@ -143,8 +146,25 @@ def test_dvc_repro_in_a_copy_then_up_to_date_and_a_param_change_reruns_the_right
     status = json.loads(_run([*dvc, "status", "--json"], cwd=tmp_path).stdout)
     assert set(status) == {"train@uikm"}
     _run([*dvc, "repro"], cwd=tmp_path)
-    changed = {p for p in outs if (tmp_path / p).stat().st_mtime_ns != outs[p]}
-    assert changed == {"data/models/uikm.pt", "data/eval/metrics.json", "data/report/README.md"}
+    changed = {p for p in outs if (tmp_path / d / p).stat().st_mtime_ns != outs[p]}
+    assert changed == {"models/uikm.pt", "eval/metrics.json", "report/README.md"}
+
+
+def _check_dataset_digests_are_dvc_hashes(repo: Path, d: str) -> None:
+    """DVC's manifest of the hole folder, meta.json and the MLflow runs name the same file versions."""
+    lock = yaml.safe_load((repo / "dvc.lock").read_text())
+    (out,) = lock["stages"]["generate"]["outs"]
+    manifest_hash = out["md5"].removesuffix(".dir")
+    manifest = json.loads((repo / ".dvc/cache/files/md5" / manifest_hash[:2] / f"{manifest_hash[2:]}.dir").read_text())
+    dvc_md5 = {e["relpath"]: e["md5"] for e in manifest}
+    meta = json.loads((repo / d / "holes/meta.json").read_text())
+    assert meta["files"] == {k: v for k, v in dvc_md5.items() if k != "meta.json"}
+    client = MlflowClient(f"sqlite:///{repo}/mlflow.db")
+    exp = client.get_experiment_by_name("boom-ik-quick")
+    assert exp.tags["mlflow.experimentKind"] == "custom_model_development"
+    (uikm,) = client.search_runs([exp.experiment_id], "tags.method = 'uikm'")
+    logged = {i.dataset.name: i.dataset.digest for i in uikm.inputs.dataset_inputs}
+    assert logged == {"train.parquet": dvc_md5["train.parquet"]}
 
 
 @pytest.mark.skipif(os.environ.get("BOOM_IK_RAY_TESTS") != "1", reason="opt-in: BOOM_IK_RAY_TESTS=1, [ray] extra")

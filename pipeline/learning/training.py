@@ -17,6 +17,7 @@ from tqdm.auto import tqdm
 
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.core.settings import parse, rule
+from pipeline.core.signals import raise_if_terminated
 from pipeline.data.hole_sets import read_hole_poses, read_hole_table
 from pipeline.data.holes import HoleSampling, sample_holes
 from pipeline.data.tables import POSE_COLUMNS
@@ -200,10 +201,11 @@ def fit(
     model.train()
     t0 = time.perf_counter()
     for step in bar:
+        raise_if_terminated()  # SIGTERM stops training at a step boundary even if its exception was swallowed
         pose, q = next(batches)
         terms = loss_terms(model, boom, safety, objective, pose, q)
         if not torch.isfinite(terms["loss"]):
-            raise InputError(f"training diverged: loss = {float(terms['loss'])} at step {step} "
+            raise InputError(f"training diverged: loss = {float(terms['loss'].detach())} at step {step} "
                              f"(terms {_finite_report(terms)}); check the data and train.lr = {lr}")
         opt.zero_grad(set_to_none=True)
         terms["loss"].backward()

@@ -22,11 +22,10 @@ import json
 import logging
 import math
 import os
-import signal
 import socket
-import threading
 import urllib.error
 import urllib.request
+import warnings
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,6 +33,7 @@ from pathlib import Path
 from pipeline.core.config import main_root
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import file_md5, require_writable
+from pipeline.core.signals import Terminated, raise_if_terminated, terminate_as_interrupt
 
 log = logging.getLogger(__name__)
 
@@ -80,8 +80,11 @@ class TrackingSettings:
         register = node.get("register_models", False)
         if not isinstance(register, bool):
             raise ConfigError(f"tracking.register_models = {register!r}: expected true or false")
-        return cls(enabled, resolve_uri(node.get("uri")), experiment,
-                   root if root.is_absolute() else main_root() / root, system_metrics, register)
+        settings = cls(enabled, resolve_uri(node.get("uri")), experiment,
+                       root if root.is_absolute() else main_root() / root, system_metrics, register)
+        if enabled:
+            check_store(settings)  # with the other settings: before any data is read or run is opened
+        return settings
 
 
 # ---------------------------------------------------------------------------------------- store
@@ -165,32 +168,6 @@ def mark_stale_runs(experiment_id: str) -> list[str]:
     if stale:
         log.warning("marked %d stale RUNNING run(s) of dead processes as KILLED: %s", len(stale), stale)
     return stale
-
-
-# ---------------------------------------------------------------------------------------- signals
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised in the main thread so that runs end and temporary files are removed."""
-
-    def __init__(self, signum: int):
-        super().__init__(f"received {signal.Signals(signum).name}")
-        self.signum = signum
-
-
-@contextlib.contextmanager
-def terminate_as_interrupt() -> Iterator[None]:
-    """Turn SIGTERM (how ``timeout``, Slurm and Ray stop a job) into :class:`Terminated` while inside."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def handler(signum, _frame):
-        raise Terminated(signum)
-
-    old = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, old)
 
 
 # ---------------------------------------------------------------------------------------- the run
@@ -287,7 +264,9 @@ class StageRun:
             import mlflow.data
 
             path = Path(path)
-            ds = mlflow.data.from_pandas(df, source=str(path), name=path.name, digest=digest or file_md5(path))
+            with warnings.catch_warnings():  # MLflow registers two equivalent sources for local files
+                warnings.filterwarnings("ignore", message="The specified dataset source can be interpreted")
+                ds = mlflow.data.from_pandas(df, source=str(path), name=path.name, digest=digest or file_md5(path))
             mlflow.log_input(ds, context=context)
 
 
@@ -302,6 +281,7 @@ def stage_run(settings: TrackingSettings, run_name: str, tags: Mapping[str, str]
         if not settings.enabled:
             try:
                 yield StageRun()
+                raise_if_terminated()
             except Terminated as exc:
                 raise SystemExit(128 + exc.signum) from exc
             return
@@ -315,6 +295,7 @@ def stage_run(settings: TrackingSettings, run_name: str, tags: Mapping[str, str]
         run_id = run.info.run_id
         try:
             yield StageRun(run_id)
+            raise_if_terminated()  # a SIGTERM whose exception some library swallowed
         except KeyboardInterrupt as exc:
             reason = str(exc) or "interrupted (SIGINT / Ctrl-C)"
             _end(run_id, "KILLED", reason)

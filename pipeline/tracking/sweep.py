@@ -20,8 +20,6 @@ from __future__ import annotations
 import atexit
 import json
 import logging
-import signal
-import threading
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +28,7 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from pipeline.core.io import save_figure, write_csv, write_json
+from pipeline.core.signals import install_for_process
 
 log = logging.getLogger(__name__)
 PARENT_FILE = "mlflow_parent_run_id"
@@ -176,8 +175,7 @@ class MlflowSweepCallback(Callback):
             log.info("MLflow parent run %s for sweep %s", parent, sweep)
         self._open = (folder, client, parent)
         atexit.register(self._finish_at_exit)  # Hydra skips on_multirun_end when a job fails
-        if threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
+        install_for_process()  # SIGTERM ends the sweep through the exit handler too
 
     def on_job_end(self, config: DictConfig, job_return, **kwargs) -> None:
         """In the job's own process: a failed job leaves a trace the summary can count."""
@@ -232,9 +230,3 @@ class MlflowSweepCallback(Callback):
             if status != "FINISHED":
                 client.set_tag(parent, END_REASON, f"{failed} job(s) failed" if failed else "sweep interrupted")
             client.set_terminated(parent, status)
-
-
-def _sigterm_as_interrupt(signum, _frame):
-    from pipeline.tracking.runs import Terminated
-
-    raise Terminated(signum)

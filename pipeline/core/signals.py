@@ -1,0 +1,57 @@
+"""SIGTERM as an interrupt: how ``timeout``, Slurm and Ray stop a job, turned into an exception in the
+main thread, so that runs are ended (KILLED) and temporary files removed instead of left behind.
+
+The handler raises at once, and also remembers the signal: a library that swallows the exception
+(a retry loop with a bare ``except``) cannot make the process carry on, because long loops call
+:func:`raise_if_terminated` and the stage's run checks it again before it reports success.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+from collections.abc import Iterator
+
+_pending: int | None = None
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM received; ``signum`` gives the exit status 128 + signum."""
+
+    def __init__(self, signum: int):
+        super().__init__(f"received {signal.Signals(signum).name}")
+        self.signum = signum
+
+
+def _handler(signum, _frame):
+    global _pending
+    _pending = signum
+    raise Terminated(signum)
+
+
+def raise_if_terminated() -> None:
+    """Raise :class:`Terminated` if SIGTERM arrived (and its first exception was swallowed)."""
+    if _pending is not None:
+        raise Terminated(_pending)
+
+
+@contextlib.contextmanager
+def terminate_as_interrupt() -> Iterator[None]:
+    """While inside, SIGTERM raises :class:`Terminated` in the main thread (elsewhere: no change)."""
+    global _pending
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGTERM, _handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+        _pending = None
+
+
+def install_for_process() -> None:
+    """SIGTERM raises :class:`Terminated` from now on in this process (a sweep's main process)."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _handler)

@@ -1,0 +1,311 @@
+"""Runs that never lie: one test per defect of the reliability issue, each reproducing it first.
+
+Concurrent trainings log their own models; SIGTERM ends a run KILLED; SIGKILL's leftovers are
+marked KILLED by the next run; a failing sweep job gives a FAILED parent with a summary of the
+others; NaN joints and bad settings are refused before any run exists; parallel first runs share
+a fresh store; an interrupted or mixed hole set is detected; corrupt checkpoints are named.
+"""
+
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+from mlflow.tracking import MlflowClient
+
+from pipeline import generate, paper_baselines, train
+from pipeline.core.config import PROJECT_ROOT
+from pipeline.core.errors import ConfigError, InputError
+from pipeline.core.io import file_md5, write_json
+from pipeline.data.hole_sets import read_hole_table
+from pipeline.learning.models import load_checkpoint
+from pipeline.tracking.runs import TrackingSettings, stage_run
+
+TINY = ["train.steps=20", "train.eval_every=10", "model.width=16", "model.depth=1", "train.log_model=false",
+        "holes.unsup.size=300", "holes.sup.size=300", "holes.test.size=40", "train.val_size=50",
+        "train.batch_size=64"]
+
+
+def _env():
+    env = dict(os.environ)
+    env.pop("MLFLOW_TRACKING_URI", None)
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+def _cli(tmp: Path, *args: str) -> list[str]:
+    return [sys.executable, "-m", "pipeline.train", "experiment=quick", *TINY, f"paths.data={tmp}/data",
+            f"tracking.uri=sqlite:///{tmp}/mlflow.db", f"tracking.artifact_root={tmp}/art",
+            f"hydra.run.dir={tmp}/h/{time.monotonic_ns()}", *args]
+
+
+def _client(tmp: Path):
+    client = MlflowClient(f"sqlite:///{tmp}/mlflow.db")
+    exp = client.get_experiment_by_name("boom-ik-quick")
+    return client, (client.search_runs([exp.experiment_id]) if exp else [])
+
+
+def _wait_for_running_run(tmp: Path, proc, timeout=120) -> str:
+    """The id of the process's RUNNING run, read with plain SQLite: an MlflowClient here would race
+    the process on creating the fresh store, which is not what is under test."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()
+        try:
+            with sqlite3.connect(f"file:{tmp}/mlflow.db?mode=ro", uri=True) as db:
+                rows = db.execute("select run_uuid from runs where status = 'RUNNING'").fetchall()
+            if rows:
+                return rows[0][0]
+        except sqlite3.OperationalError:  # no file or no tables yet
+            pass
+        time.sleep(0.5)
+    raise AssertionError("no RUNNING run appeared")
+
+
+@pytest.fixture(scope="module")
+def holes(tmp_path_factory, make_cfg):
+    tmp = tmp_path_factory.mktemp("rel")
+    generate.run(make_cfg(tmp, *TINY))
+    return tmp
+
+
+def _fresh(tmp_path, holes) -> Path:
+    """A study folder with the shared hole set and its own (empty) MLflow store."""
+    (tmp_path / "data").mkdir()
+    os.symlink(holes / "data" / "holes", tmp_path / "data" / "holes")
+    return tmp_path
+
+
+# ---------------------------------------------------------------------------------------- defect 1
+@pytest.mark.slow
+def test_concurrent_trainings_each_log_their_own_model(tmp_path, holes):
+    tmp = _fresh(tmp_path, holes)
+    procs = [subprocess.Popen(_cli(tmp, f"train.seed={seed}", "train.steps=60"), env=_env(), cwd=PROJECT_ROOT,
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for seed in (11, 21)]
+    for p in procs:
+        out, _ = p.communicate(timeout=600)
+        assert p.returncode == 0, out
+    client, runs = _client(tmp)
+    assert len(runs) == 2
+    for run in runs:
+        local = client.download_artifacts(run.info.run_id, "cuikm.pt", str(tmp / run.info.run_id))
+        _, meta = load_checkpoint(local)
+        assert meta["mlflow_run_id"] == run.info.run_id
+        assert str(meta["config"]["train"]["seed"]) == run.data.params["train.seed"]
+        assert meta["final"]["val_hole_mm"] == pytest.approx(run.data.metrics["final_val_hole_mm"], rel=1e-12)
+    # the published trio belongs to one run
+    _, meta = load_checkpoint(tmp / "data" / "models" / "cuikm.pt")
+    final = json.loads((tmp / "data" / "models" / "cuikm_final.json").read_text())
+    assert final["val_hole_mm"] == meta["final"]["val_hole_mm"]
+    assert not list((tmp / "data" / "models").glob(".cuikm.run-*"))  # private folders removed
+
+
+# ---------------------------------------------------------------------------------------- defect 2
+@pytest.mark.slow
+def test_sigterm_ends_the_run_killed_and_leaves_no_partial_files(tmp_path, holes):
+    tmp = _fresh(tmp_path, holes)
+    proc = subprocess.Popen(_cli(tmp, "train.steps=1000000"), env=_env(), cwd=PROJECT_ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    run_id = _wait_for_running_run(tmp, proc)
+    proc.send_signal(signal.SIGTERM)
+    out, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 128 + signal.SIGTERM, out
+    client, _ = _client(tmp)
+    ended = client.get_run(run_id)
+    assert ended.info.status == "KILLED"
+    assert ended.data.tags["run.end_reason"] == "received SIGTERM"
+    models = tmp / "data" / "models"
+    assert not (models / "cuikm.pt").exists() and not list(models.glob(".*"))
+
+
+@pytest.mark.slow
+def test_a_sigkilled_run_is_marked_killed_by_the_next_run(tmp_path, holes):
+    tmp = _fresh(tmp_path, holes)
+    proc = subprocess.Popen(_cli(tmp, "train.steps=1000000"), env=_env(), cwd=PROJECT_ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    run_id = _wait_for_running_run(tmp, proc)
+    proc.kill()
+    proc.wait(timeout=60)
+    client, _ = _client(tmp)
+    assert client.get_run(run_id).info.status == "RUNNING"  # what SIGKILL leaves behind
+    settings = TrackingSettings.from_config({"enabled": True, "uri": f"sqlite:///{tmp}/mlflow.db",
+                                             "experiment": "boom-ik-quick", "artifact_root": str(tmp / "art")})
+    with stage_run(settings, "next", {"stage": "test"}):
+        pass
+    stale = client.get_run(run_id)
+    assert stale.info.status == "KILLED"
+    assert "ended without closing the run" in stale.data.tags["run.end_reason"]
+
+
+@pytest.mark.slow
+def test_a_failing_sweep_job_fails_the_parent_and_the_others_are_summarised(tmp_path, holes):
+    tmp = _fresh(tmp_path, holes)
+    sweep = tmp / "sweep"
+    cmd = _cli(tmp, "method=cuikm", "method.mu=1,-1", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
+               f"hydra.sweep.dir={sweep}")
+    cmd.insert(3, "-m")  # python -m pipeline.train -m ...
+    done = subprocess.run(cmd, env=_env(), cwd=PROJECT_ROOT, capture_output=True, text=True, timeout=600)
+    assert done.returncode != 0
+    client, runs = _client(tmp)
+    assert runs, done.stdout[-3000:] + done.stderr[-3000:]
+    (parent,) = [r for r in runs if r.data.tags.get("stage") == "sweep"]
+    assert parent.info.status == "FAILED" and parent.data.tags["run.end_reason"] == "1 job(s) failed"
+    children = {r.data.tags["sweep.overrides"].split()[-1]: r for r in runs
+                if r.data.tags.get("mlflow.parentRunId") == parent.info.run_id}
+    assert children["method.mu=1"].info.status == "FINISHED"
+    assert children["method.mu=-1"].info.status == "FAILED"
+    assert "method.mu = -1.0" in children["method.mu=-1"].data.tags["run.end_reason"]
+    summary = pd.read_csv(sweep / "summary.csv").set_index("overrides")
+    assert summary.loc["method.mu=1", "status"] == "FINISHED" and summary.loc["method.mu=1", "pareto"]
+    assert summary.loc["method.mu=-1", "status"] == "FAILED"
+    assert (sweep / "tradeoff.png").stat().st_size > 5000
+    assert {"sweep/summary.json", "sweep/tradeoff.png"} <= {a.path for a in
+                                                           client.list_artifacts(parent.info.run_id, "sweep")}
+
+
+# ---------------------------------------------------------------------------------------- defect 3
+def test_a_nan_joint_in_the_supervised_set_is_refused_before_any_run(tmp_path, holes, make_cfg):
+    tmp = tmp_path
+    (tmp / "data" / "holes").mkdir(parents=True)
+    src = holes / "data" / "holes"
+    for f in src.iterdir():
+        (tmp / "data" / "holes" / f.name).write_bytes(f.read_bytes())
+    sup = pd.read_parquet(src / "sup.parquet")
+    sup.loc[7, "q4"] = np.nan
+    sup.to_parquet(tmp / "data" / "holes" / "sup.parquet", index=False)
+    meta = json.loads((src / "meta.json").read_text())
+    meta["files"]["sup.parquet"] = file_md5(tmp / "data" / "holes" / "sup.parquet")  # as if generate wrote it
+    write_json(meta, tmp / "data" / "holes" / "meta.json")
+    with pytest.raises(InputError, match=r"sup.parquet: column 'q4' has 1 non-finite .* row 7"):
+        train.run(make_cfg(tmp, *TINY, "method=sikm"))
+    assert not (tmp / "mlflow.db").exists() or not _client(tmp)[1]
+
+
+def test_json_is_strict_and_names_the_key(tmp_path):
+    with pytest.raises(InputError, match=r"value at 'sikm.hole_mm_mean' is not finite"):
+        write_json({"sikm": {"hole_mm_mean": float("nan")}}, tmp_path / "m.json")
+    assert not (tmp_path / "m.json").exists()
+
+
+def test_a_non_finite_loss_stops_training_and_names_the_step(safety):
+    from pipeline.learning.models import build_model
+    from pipeline.learning.training import Objective, fit
+
+    pose = torch.zeros(8, 6)
+    model = build_model(safety.boom, pose.mean(0), torch.ones(6), 8, 1, "gelu")
+    batches = iter([(torch.full((8, 6), float("nan")), None)] * 3)
+    with pytest.raises(InputError, match=r"loss = nan at step 0"):
+        fit(model, safety.boom, safety, Objective(False, 1.0, 0.0, "norm"), batches, 3, 1e-3, pose)
+
+
+# ---------------------------------------------------------------------------------------- defect 4
+PROBE = """
+import sys
+from pipeline.tracking.runs import TrackingSettings, stage_run
+s = TrackingSettings.from_config({"enabled": True, "uri": sys.argv[1], "experiment": "race",
+                                  "artifact_root": sys.argv[2]})
+with stage_run(s, "probe", {"stage": "probe"}) as run:
+    run.log_metrics({"x": 1.0})
+"""
+
+
+def test_parallel_first_runs_on_a_fresh_store_do_not_race(tmp_path):
+    uri = f"sqlite:///{tmp_path}/fresh.db"
+    procs = [subprocess.Popen([sys.executable, "-c", PROBE, uri, str(tmp_path / "art")], env=_env(),
+                              cwd=PROJECT_ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+             for _ in range(4)]
+    outs = [p.communicate(timeout=300)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0] * 4, outs
+    client = MlflowClient(uri)
+    runs = client.search_runs([client.get_experiment_by_name("race").experiment_id])
+    assert len(runs) == 4 and {r.info.status for r in runs} == {"FINISHED"}
+
+
+# ---------------------------------------------------------------------------------------- defect 5
+@pytest.mark.parametrize("override", ["train.steps=0", "train.steps=-5", "train.steps=nan", "train.eval_every=0",
+                                      "train.lr=0", "train.lr=abc", "train.batch_size=0", "model.width=0"])
+def test_bad_train_settings_fail_before_any_run_or_file(tmp_path, holes, make_cfg, override):
+    tmp = _fresh(tmp_path, holes)
+    with pytest.raises(ConfigError, match=override.split("=")[0].replace(".", r"\.")):
+        train.run(make_cfg(tmp, *TINY, override))
+    assert not (tmp / "mlflow.db").exists()
+    assert not (tmp / "data" / "models").exists()
+
+
+def test_an_unwritable_data_folder_fails_before_training(tmp_path, holes, make_cfg):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    with pytest.raises(InputError, match=r"paths.data = .*file/models: cannot create the folder"):
+        train.run(make_cfg(tmp_path, *TINY, f"paths.data={blocker}"))
+
+
+def test_an_unwritable_tracking_store_fails_at_once_with_the_setting_named(tmp_path, holes, make_cfg):
+    tmp = _fresh(tmp_path, holes)
+    (tmp / "file").write_text("not a folder")
+    with pytest.raises(ConfigError, match=r"tracking.uri \(its folder\) = .*file/sub: cannot create the folder"):
+        train.run(make_cfg(tmp, *TINY, f"tracking.uri=sqlite:///{tmp}/file/sub/mlflow.db"))
+
+
+def test_paper_baselines_checks_its_holes_before_the_swarms(tmp_path, make_cfg):
+    with pytest.raises(InputError, match="test_group_1.parquet: no such hole table"):
+        paper_baselines.run(make_cfg(tmp_path))
+    assert not (tmp_path / "mlflow.db").exists()
+
+
+# ---------------------------------------------------------------------------------------- defect 6
+def test_corrupt_checkpoints_are_named_with_how_to_rebuild(tmp_path, holes):
+    good = next((holes / "data").glob("models/*.pt"), None)
+    truncated = tmp_path / "cuikm.pt"
+    truncated.write_bytes(b"PK\x03\x04 not a whole file")
+    rebuild = r"`python -m pipeline.train method=cuikm`"
+    with pytest.raises(InputError, match=rf"cuikm.pt: not a readable checkpoint .*{rebuild}"):
+        load_checkpoint(truncated)
+    foreign = tmp_path / "uikm.pt"
+    torch.save({"weights": torch.zeros(3)}, foreign)
+    with pytest.raises(InputError, match=r"uikm.pt: not an IK network checkpoint \(missing \['state_dict'"):
+        load_checkpoint(foreign)
+    empty = tmp_path / "sikm.pt"
+    empty.write_bytes(b"")
+    with pytest.raises(InputError, match="sikm.pt: not a readable checkpoint"):
+        load_checkpoint(empty)
+    assert good is None or load_checkpoint(good)
+
+
+def test_a_hole_folder_mixing_two_generate_runs_is_detected(tmp_path, make_cfg):
+    generate.run(make_cfg(tmp_path / "a", *TINY))
+    generate.run(make_cfg(tmp_path / "b", *TINY, "holes.unsup.seed=7"))
+    a, b = tmp_path / "a" / "data" / "holes", tmp_path / "b" / "data" / "holes"
+    read_hole_table(a, "train.parquet")
+    (a / "train.parquet").write_bytes((b / "train.parquet").read_bytes())
+    with pytest.raises(InputError, match=r"train.parquet: MD5 .* differs .*`python -m pipeline.generate`"):
+        read_hole_table(a, "train.parquet")
+
+
+def test_an_interrupted_generate_leaves_the_old_set_whole(tmp_path, make_cfg, monkeypatch):
+    generate.run(make_cfg(tmp_path, *TINY))
+    holes = tmp_path / "data" / "holes"
+    before = {p.name: p.read_bytes() for p in holes.iterdir()}
+    import pipeline.data.hole_sets as hole_sets
+
+    calls = {"n": 0}
+    real = hole_sets.write_parquet
+
+    def dies_on_the_third_file(df, path):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise KeyboardInterrupt  # Ctrl-C mid-write
+        real(df, path)
+
+    monkeypatch.setattr(hole_sets, "write_parquet", dies_on_the_third_file)
+    with pytest.raises(KeyboardInterrupt):
+        generate.run(make_cfg(tmp_path, *TINY, "holes.unsup.seed=9"))
+    assert {p.name: p.read_bytes() for p in holes.iterdir()} == before
+    assert sorted(p.name for p in (tmp_path / "data").iterdir()) == ["holes"]  # no staging folder left
