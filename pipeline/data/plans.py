@@ -26,7 +26,7 @@ import pandas as pd
 import torch
 
 from pipeline.core.errors import ConfigError, InputError
-from pipeline.data.tables import write_csv
+from pipeline.core.io import write_csv
 from pipeline.geometry.collision import SafetyModel
 from pipeline.geometry.tunnel import Horseshoe
 

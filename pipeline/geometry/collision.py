@@ -97,21 +97,23 @@ class SafetyModel:
         """The same boom and tunnel with other safety distances (the training penalties')."""
         return SafetyModel(self.boom, self.tunnel, distances, self.n_points)
 
-    def _tunnel_points(self, body: Capsule, start: torch.Tensor, end: torch.Tensor) -> torch.Tensor:
-        """``n_points`` points along the part of a capsule's axis checked against the tunnel."""
-        if body.tunnel_skip_end:
-            axis = end - start
-            length = safe_norm(axis).unsqueeze(-1)
-            keep = (1.0 - body.tunnel_skip_end / length.clamp_min(1e-12)).clamp_min(0.0)
-            end = start + keep * axis
+    def _tunnel_points(self, body: Capsule, start: torch.Tensor, end: torch.Tensor):
+        """``n_points`` points ``(..., P, 3)`` along the part of a capsule's axis checked against the
+        tunnel, and where each lies as a fraction ``(..., P)`` of the way from ``start`` to ``end``."""
         t = torch.linspace(0.0, 1.0, self.n_points, dtype=start.dtype, device=start.device)
-        return start.unsqueeze(-2) + t.unsqueeze(-1) * (end - start).unsqueeze(-2)
+        axis = end - start
+        if body.tunnel_skip_end:
+            length = safe_norm(axis).unsqueeze(-1)
+            t = t * (1.0 - body.tunnel_skip_end / length.clamp_min(1e-12)).clamp_min(0.0)
+        else:
+            t = t.expand(*start.shape[:-1], -1)
+        return start.unsqueeze(-2) + t.unsqueeze(-1) * axis.unsqueeze(-2), t
 
     def _tunnel_clearances(self, bodies) -> dict[str, torch.Tensor]:
         """Min clearance to each tunnel surface over every given body's sample points."""
         worst: dict[str, torch.Tensor] = {}
         for body, start, end in bodies:
-            pts = self._tunnel_points(body, start, end)
+            pts, _ = self._tunnel_points(body, start, end)
             dist = self.tunnel.surface_distances(pts[..., 1], pts[..., 2])
             for kind in SURFACES:
                 c = (dist[kind] - body.radius - getattr(self.distances, kind)).amin(dim=-1)
@@ -141,6 +143,49 @@ class SafetyModel:
         out["self"] = selfc
         return {k: out[k] for k in SAFETY_KINDS}
 
+    def clearances_with_jacobians(self, frames: torch.Tensor) -> tuple[dict[str, torch.Tensor], dict]:
+        """The clearances of :meth:`clearances_from_frames` and their gradients ``(..., n_joints)``
+        with respect to the joints, from one forward pass (no autograd: solvers call it every step).
+
+        A clearance is a minimum over sample points (tunnel) or the closest points of two segments
+        (self), so its gradient is the gradient at the minimising point: the surface's unit normal
+        (or the unit vector between the closest points) times that point's geometric Jacobian. The
+        feed's checked length is fixed (its length is), so the truncation adds no term."""
+        boom = self.boom
+        axes = boom.joint_axes(frames)
+        ends, jacs = {}, {}
+        for name, body in boom.bodies.items():
+            ends[name] = (boom.point(frames, body.start), boom.point(frames, body.end))
+            jacs[name] = tuple(boom.point_jacobian(frames, p, spec.frame, axes)[0]
+                               for p, spec in zip(ends[name], (body.start, body.end), strict=True))
+        values: dict[str, torch.Tensor] = {}
+        grads: dict[str, torch.Tensor] = {}
+        for name, body in boom.bodies.items():
+            pts, frac = self._tunnel_points(body, *ends[name])
+            dist = self.tunnel.surface_distances(pts[..., 1], pts[..., 2])
+            for kind in SURFACES:
+                c, i = (dist[kind] - body.radius - getattr(self.distances, kind)).min(dim=-1)
+                p = torch.gather(pts, -2, i[..., None, None].expand(*i.shape, 1, 3)).squeeze(-2)
+                a = torch.gather(frac, -1, i.unsqueeze(-1))[..., None]
+                jp = (1 - a) * jacs[name][0] + a * jacs[name][1]
+                gy, gz = self.tunnel.surface_gradients(p[..., 1], p[..., 2])[kind]
+                g = gy.unsqueeze(-1) * jp[..., 1, :] + gz.unsqueeze(-1) * jp[..., 2, :]
+                _keep_min(values, grads, kind, c, g)
+        for a_name, b_name in boom.self_pairs:
+            dist, s, t = segment_distance(*ends[a_name], *ends[b_name])
+            c = dist - boom.bodies[a_name].radius - boom.bodies[b_name].radius - self.distances.self
+            (a0, a1), (b0, b1) = ends[a_name], ends[b_name]
+            s_, t_ = s[..., None], t[..., None]
+            u = ((a0 + s_ * (a1 - a0)) - (b0 + t_ * (b1 - b0))) / dist.clamp_min(1e-12)[..., None]
+            s_, t_ = s_[..., None], t_[..., None]
+            j_rel = ((1 - s_) * jacs[a_name][0] + s_ * jacs[a_name][1]
+                     - (1 - t_) * jacs[b_name][0] - t_ * jacs[b_name][1])
+            _keep_min(values, grads, "self", c, (u.unsqueeze(-1) * j_rel).sum(-2))
+        if "self" not in values:  # no self pairs: self collision cannot happen
+            values["self"] = torch.full(frames.shape[:-3], math.inf, dtype=frames.dtype, device=frames.device)
+            grads["self"] = torch.zeros(*frames.shape[:-3], boom.n_joints, dtype=frames.dtype, device=frames.device)
+        return {k: values[k] for k in SAFETY_KINDS}, {k: grads[k] for k in SAFETY_KINDS}
+
     def tool_body_clearances(self, p: torch.Tensor, z: torch.Tensor) -> dict[str, torch.Tensor]:
         """Tunnel clearances of the bodies fixed to the tool frame, from a hole pose alone.
 
@@ -162,3 +207,13 @@ class SafetyModel:
     def penalties(clearances: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         """Hinge of each clearance (paper 000 eqs. 14-15): zero exactly where the check passes."""
         return {k: torch.relu(-c) for k, c in clearances.items()}
+
+
+def _keep_min(values: dict, grads: dict, kind: str, c: torch.Tensor, g: torch.Tensor) -> None:
+    """Keep, per configuration, the smaller clearance of ``kind`` and its gradient."""
+    if kind not in values:
+        values[kind], grads[kind] = c, g
+        return
+    take = c < values[kind]
+    values[kind] = torch.where(take, c, values[kind])
+    grads[kind] = torch.where(take.unsqueeze(-1), g, grads[kind])

@@ -255,48 +255,56 @@ class Boom:
 
 
     # ------------------------------------------------------------------ Jacobians
-    def _axis_layout(self) -> tuple[list[int], list[bool]]:
-        """Per joint: the index in :meth:`frames` of the frame holding its axis, and whether the
-        axis is that frame's x (a link extension ``a``) rather than its z.
+    def _axis_layout(self, device) -> dict[str, torch.Tensor]:
+        """Per joint, where its axis lives and what it moves (cached per device).
 
-        Modified D-H (``RotX(alpha) TransX(a) RotZ(theta) TransZ(d)``): theta and d act along z of
-        the frame after the row, ``a`` along x of the frame before it. Standard D-H
-        (``RotZ(theta) TransZ(d) TransX(a) RotX(alpha)``): theta and d act along z of the frame
-        before the row, ``a`` along x of the frame after it."""
-        frame, along_x = [], []
-        for j in self.joints:
-            after = j.row + 1
-            if self.convention == "modified":
-                frame.append(j.row if j.param == "a" else after)
-            else:
-                frame.append(after if j.param == "a" else j.row)
-            along_x.append(j.param == "a")
-        return frame, along_x
+        ``frame``: index in :meth:`frames` of the frame holding the axis. Modified D-H
+        (``RotX(alpha) TransX(a) RotZ(theta) TransZ(d)``): theta and d act along z of the frame after
+        the row, ``a`` along x of the frame before it. Standard D-H (``RotZ(theta) TransZ(d)
+        TransX(a) RotX(alpha)``): theta and d act along z of the frame before the row, ``a`` along x of
+        the frame after it. ``along_x``: the axis is that frame's x. ``moves``: the first frame index
+        the joint moves (every frame after its row, in both conventions)."""
+        key = ("axes", device)
+        if key not in self._cache:
+            frame = [j.row if (j.param == "a") == (self.convention == "modified") else j.row + 1 for j in self.joints]
+            self._cache[key] = {
+                "frame": torch.tensor(frame, device=device),
+                "along_x": torch.tensor([j.param == "a" for j in self.joints], device=device).unsqueeze(-1),
+                "revolute": torch.tensor([j.revolute for j in self.joints], device=device).unsqueeze(-1),
+                "moves": torch.tensor([j.row + 1 for j in self.joints], device=device),
+            }
+        return self._cache[key]
 
     def joint_axes(self, frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Unit axis ``(..., n_joints, 3)`` of each joint and a point ``(..., n_joints, 3)`` on it."""
-        index, along_x = self._axis_layout()
-        F = frames[..., index, :3, :]
-        use_x = torch.tensor(along_x, device=frames.device).unsqueeze(-1)
-        return torch.where(use_x, F[..., 0], F[..., 2]), F[..., 3]
+        layout = self._axis_layout(frames.device)
+        F = frames[..., layout["frame"], :3, :]
+        return torch.where(layout["along_x"], F[..., 0], F[..., 2]), F[..., 3]
 
-    def point_jacobian(self, frames: torch.Tensor, point: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Geometric Jacobian of a point ``(..., 3)`` moving with the tool: linear ``(..., 3, n_joints)``
-        (revolute column ``u x (p - o)``, prismatic column ``u``) and angular (``u`` or 0), from one
-        forward pass: no autograd, so it serves inside solvers' inner loops."""
-        axis, origin = self.joint_axes(frames)
-        revolute = torch.tensor([j.revolute for j in self.joints], device=frames.device).unsqueeze(-1)
+    def point_jacobian(
+        self, frames: torch.Tensor, point: torch.Tensor, frame: int | None = None, axes=None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Geometric Jacobian of a point ``(..., 3)`` fixed to frame index ``frame`` (default: the
+        tool frame): linear ``(..., 3, n_joints)`` (revolute column ``u x (p - o)``, prismatic column
+        ``u``) and angular (``u`` or 0); columns of joints that do not move that frame are zero.
+        From one forward pass, no autograd, so it serves inside solvers' inner loops; pass
+        ``axes=self.joint_axes(frames)`` to share them between points."""
+        layout = self._axis_layout(frames.device)
+        axis, origin = self.joint_axes(frames) if axes is None else axes
         swept = torch.linalg.cross(axis, point.unsqueeze(-2) - origin, dim=-1)
-        linear = torch.where(revolute, swept, axis)
-        angular = torch.where(revolute, axis, torch.zeros_like(axis))
+        linear = torch.where(layout["revolute"], swept, axis)
+        angular = torch.where(layout["revolute"], axis, torch.zeros_like(axis))
+        if frame is not None and frame < self.tool_index:
+            moving = (layout["moves"] <= frame).unsqueeze(-1)
+            linear, angular = linear * moving, angular * moving
         return linear.transpose(-1, -2), angular.transpose(-1, -2)
 
-    def pose6_jacobian(self, frames: torch.Tensor, depth: float | None = None) -> torch.Tensor:
+    def pose6_jacobian(self, frames: torch.Tensor, depth: float | None = None, axes=None) -> torch.Tensor:
         """``d pose6 / d q``: ``(..., 6, n_joints)``, the collar rows then the preview rows
         (``p' = p + D z``, so its rows add ``D (w x z)``)."""
         depth = self.preview_depth if depth is None else depth
         p, z = self.tool_pose_from_frames(frames)
-        linear, angular = self.point_jacobian(frames, p)
+        linear, angular = self.point_jacobian(frames, p, axes=axes)
         turn = torch.linalg.cross(angular, z.unsqueeze(-1).expand_as(angular), dim=-2)
         return torch.cat([linear, linear + depth * turn], dim=-2)
 

@@ -63,6 +63,26 @@ class Horseshoe:
         arch = torch.where(above, r - radial, _signed_hypot(inward, h - z, inward))
         return {"wall": wall, "ground": z, "arch": arch}
 
+    def surface_gradients(self, y: torch.Tensor, z: torch.Tensor) -> dict[str, tuple[torch.Tensor, torch.Tensor]]:
+        """``(d/dy, d/dz)`` of each distance of :meth:`surface_distances`, in closed form.
+
+        Each distance is the exact distance to one part of the outline (a segment, a line, a
+        semicircle, a point), so its gradient is the unit vector from the nearest point of that part
+        to (y, z), signed like the distance. Used by the solvers' clearance Jacobians."""
+        r, h = self.half_width, self.wall_height
+        side = torch.where(y < 0, -1.0, 1.0).to(y.dtype)
+        inward = r - y.abs()
+        above = z > h
+        zero, one = torch.zeros_like(y), torch.ones_like(y)
+        # distance to the wall's (or arch's) end point (side * r, h): signed hypot of (inward, z - h)
+        corner = safe_norm(torch.stack([inward, z - h], dim=-1)).clamp_min(1e-12)
+        sign = torch.where(inward < 0, -1.0, 1.0).to(y.dtype)
+        corner_dy, corner_dz = -side * inward * sign / corner, (z - h) * sign / corner
+        radial = safe_norm(torch.stack([y, z - h], dim=-1)).clamp_min(1e-12)
+        wall = (torch.where(above, corner_dy, -side), torch.where(above, corner_dz, zero))
+        arch = (torch.where(above, -y / radial, corner_dy), torch.where(above, -(z - h) / radial, corner_dz))
+        return {"wall": wall, "ground": (zero, one), "arch": arch}
+
     def contains(self, y: torch.Tensor, z: torch.Tensor, inset: float = 0.0) -> torch.Tensor:
         """Boolean: (y, z) lies inside the profile shrunk by ``inset``."""
         d = self.surface_distances(y, z)

@@ -167,12 +167,15 @@ class JointSpace:
 
 @dataclass
 class SolveResult:
-    """Joints ``q (B, n_joints)``, errors per target (m / rad), iterations per target, wall time."""
+    """Joints ``q (B, n_joints)``, errors per target (m / rad), iterations per target, wall time;
+    solvers that judge safety add a status per target and its clearances (m)."""
 
     q: torch.Tensor
     errors: dict[str, torch.Tensor]
     iterations: torch.Tensor
     wall_s: float
+    status: list[str] | None = None
+    clearances: dict[str, torch.Tensor] | None = None
 
 
 class Solver:
