@@ -94,7 +94,7 @@ def markdown(df: pd.DataFrame) -> str:
     return markdown_table(fmt)
 
 
-def build_solvers(methods: list[str], specs: dict, boom, models_dir) -> dict[str, tuple[Solver, float]]:
+def build_solvers(methods: list[str], specs: dict, safety, models_dir) -> dict[str, tuple[Solver, float]]:
     """Every solver built (networks loaded, RBF fitted) before the first solve: fail early."""
     unknown = [m for m in methods if m not in specs]
     if unknown:
@@ -102,7 +102,7 @@ def build_solvers(methods: list[str], specs: dict, boom, models_dir) -> dict[str
     solvers = {}
     for m in methods:
         start = time.perf_counter()
-        solver = build_solver(m, specs[m], boom, models_dir, specs)
+        solver = build_solver(m, specs[m], safety.boom, models_dir, specs, safety)
         if hasattr(solver, "fit"):
             solver.fit()
         solvers[m] = (solver, time.perf_counter() - start)
@@ -116,7 +116,7 @@ def run(cfg: DictConfig) -> pd.DataFrame:
     safety = build_safety(cfg.boom, cfg.tunnel, cfg.safety)
     pose = load_holes(data / "holes", settings.group, settings.holes)
     solvers = build_solvers(settings.methods, OmegaConf.to_container(cfg.benchmark.solvers, resolve=True),
-                            safety.boom, data / "models")
+                            safety, data / "models")
     machine = {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
                "torch": torch.__version__, "threads": torch.get_num_threads(), "group": settings.group,
                "holes": settings.holes}

@@ -3,9 +3,10 @@
     python -m pipeline.generate                      # defaults of conf/config.yaml
     python -m pipeline.generate holes.unsup.size=2000 holes.cone_deg=10
 
-Writes ``train.parquet`` (Omega_unsup), ``test_group_<k>.parquet``, ``sup.parquet`` (Omega_sup,
-with joints) and ``meta.json`` (counts, seeds, statistics, each file's MD5). The same seeds give
-byte-identical files; the folder is swapped in whole.
+Writes ``holes/``: ``train.parquet`` (Omega_unsup), ``test_group_<k>.parquet``, ``sup.parquet``
+(Omega_sup, with joints) and ``meta.json`` (counts, seeds, statistics, each file's MD5), swapped in
+whole; and ``plans/demo_face.{csv,xml}``: a realistic, drillable round for the reference tunnel (CSV
+and IREDES). The same seeds give byte-identical files.
 """
 
 from __future__ import annotations
@@ -21,8 +22,11 @@ from pipeline.core.build import build_safety, hole_sampling
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.settings import parse, rule
 from pipeline.data.hole_sets import build_hole_sets, write_hole_sets
+from pipeline.data.iredes import write_iredes_plan
+from pipeline.data.plans import demo_face, write_csv_plan
 
 log = logging.getLogger(__name__)
+DEMO_PLAN_DATE = "2026-01-01T00:00:00"  # fixed, so the same seeds give byte-identical files
 
 
 @dataclass(frozen=True)
@@ -48,10 +52,19 @@ def run(cfg: DictConfig) -> dict:
     meta["config"] = {k: as_dict(cfg[k]) for k in ("boom", "tunnel", "safety", "holes")}
     out = project_path(cfg.paths.data) / "holes"
     written = write_hole_sets(tables, meta, out)  # only after every table is built
+    written += write_demo_plan(safety, project_path(cfg.paths.data) / "plans")
     log.info("wrote %d files to %s in %.1f s; Omega_unsup rejection rate %.1f %%; Omega_sup violation share %s",
              len(written), out, time.perf_counter() - t0, 100 * meta["unsup_rejection"]["rejection_rate"],
              {k: round(v, 4) for k, v in meta["sup_violation_share"].items()})
     return meta
+
+
+def write_demo_plan(safety, folder) -> list:
+    """The demo face for the reference tunnel, as CSV and as IREDES (the same holes)."""
+    plan = demo_face(safety=safety)
+    write_csv_plan(plan, folder / "demo_face.csv")
+    write_iredes_plan(plan, folder / "demo_face.xml", created=DEMO_PLAN_DATE)
+    return [folder / "demo_face.csv", folder / "demo_face.xml"]
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")

@@ -113,3 +113,76 @@ def tradeoff_figure(df: pd.DataFrame):
     ax.legend()
     fig.tight_layout(pad=1.5)
     return fig
+
+
+STATUS_COLOURS = {"ok": "tab:green", "inexact": "tab:orange", "unsafe": "tab:red", "unreachable": "tab:purple",
+                  "invalid": "tab:gray"}
+VIEWS = (("side", 0, 2, "x (m)", "z (m)"), ("top", 0, 1, "x (m)", "y (m)"), ("front", 1, 2, "y (m)", "z (m)"))
+
+
+def _stadium(a: np.ndarray, b: np.ndarray, r: float, n: int = 16) -> np.ndarray:
+    """Outline (2-D) of a capsule's projection: segment a-b widened by r, round ends."""
+    d = b - a
+    angle = np.arctan2(d[1], d[0]) if np.linalg.norm(d) > 1e-12 else 0.0
+    half = np.linspace(-np.pi / 2, np.pi / 2, n)
+    end_b = b + r * np.stack([np.cos(angle + half), np.sin(angle + half)], -1)
+    end_a = a + r * np.stack([np.cos(angle + np.pi + half), np.sin(angle + np.pi + half)], -1)
+    return np.concatenate([end_b, end_a, end_b[:1]])
+
+
+def _tunnel_outline(ax, view: str, tunnel: Horseshoe, safety_wall: float, x_range: tuple[float, float]) -> None:
+    if view == "front":
+        ys, zs = tunnel.profile_polyline()
+        ax.plot(ys, zs, color="k", lw=1)
+        return
+    lo, hi = x_range
+    if view == "side":
+        for z in (0.0, tunnel.crown):
+            ax.plot([lo, hi], [z, z], color="k", lw=1)
+    else:
+        for y in (-tunnel.half_width, tunnel.half_width):
+            ax.plot([lo, hi], [y, y], color="k", lw=1)
+            inner = y - np.sign(y) * safety_wall
+            ax.plot([lo, hi], [inner, inner], color="k", lw=0.6, ls=":")
+
+
+def solution_figure(table: pd.DataFrame, collars: np.ndarray, tunnel: Horseshoe, boom_views: list[dict],
+                    safety_wall: float = 0.5):
+    """The face (holes on the profile, coloured by status, error of every hole that is not ok written
+    beside it) and, below, the boom's capsules in side, top and front view at each hole of
+    ``boom_views`` (``{"hole_id", "status", "title", "capsules": [(name, start, end, radius)]}``)."""
+    fig = Figure(figsize=(13, 4.8 + 3.6 * len(boom_views)), layout="constrained")
+    grid = fig.add_gridspec(1 + len(boom_views), 3, height_ratios=[1.4] + [1.0] * len(boom_views))
+    face = fig.add_subplot(grid[0, :])
+    ys, zs = tunnel.profile_polyline()
+    face.plot(ys, zs, color="k", lw=1)
+    solved = table["status"] != "invalid"
+    for status, colour in STATUS_COLOURS.items():
+        pick = (table.loc[solved, "status"] == status).to_numpy()
+        if pick.any():
+            face.scatter(collars[pick, 1], collars[pick, 2], c=colour, s=28, label=f"{status} ({int(pick.sum())})",
+                         edgecolor="k", linewidth=0.4, zorder=3)
+    for (_, row), (_, y, z) in zip(table[solved].iterrows(), collars, strict=True):
+        if row["status"] != "ok":
+            face.annotate(f"{row['hole_id']}: {row['hole_mm']:.3g} mm", (y, z), fontsize=7, xytext=(4, 4),
+                          textcoords="offset points")
+    invalid = int((~solved).sum())
+    worst = table.loc[solved, "hole_mm"].max() if solved.any() else float("nan")
+    face.set_title(f"drill plan: {int(solved.sum())} holes solved, max hole-seeking error {worst:.3g} mm"
+                   + (f", {invalid} invalid row(s) not drawn" if invalid else ""))
+    face.set(aspect="equal", xlabel="y (m)", ylabel="z (m)")
+    face.legend(loc="upper right", fontsize=8)
+    for i, view in enumerate(boom_views):
+        pts = np.concatenate([np.stack([s, e]) for _, s, e, _ in view["capsules"]])
+        x_range = (min(0.0, pts[:, 0].min()) - 0.5, pts[:, 0].max() + 0.5)
+        for j, (name, a, b, xl, yl) in enumerate(VIEWS):
+            ax = fig.add_subplot(grid[1 + i, j])
+            _tunnel_outline(ax, name, tunnel, safety_wall, x_range)
+            for body, start, end, radius in view["capsules"]:
+                outline = _stadium(start[[a, b]], end[[a, b]], radius)
+                ax.fill(outline[:, 0], outline[:, 1], alpha=0.5, label=body,
+                        color="tab:blue" if body == "boom" else "tab:orange")
+            ax.set(aspect="equal", xlabel=xl, ylabel=yl, title=f"{view['title']}: {name}")
+            if j == 0:
+                ax.legend(fontsize=7, loc="upper left")
+    return fig

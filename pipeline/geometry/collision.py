@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import torch
 
 from pipeline.core.errors import ConfigError
-from pipeline.geometry.kinematics import Boom, Capsule
+from pipeline.geometry.kinematics import Boom
 from pipeline.geometry.rotations import safe_norm
 from pipeline.geometry.tunnel import SURFACES, Horseshoe
 
@@ -83,7 +83,11 @@ class SafetyDistances:
 
 
 class SafetyModel:
-    """Clearances of boom configurations in a tunnel, batched over configurations."""
+    """Clearances of boom configurations in a tunnel, batched over configurations.
+
+    Every capsule is sampled at once: the bodies' end points come from one gather of the frames,
+    their sample points form one ``(..., bodies, points, 3)`` tensor, and the three tunnel surfaces
+    are measured in one call, so the cost does not grow with Python loops over bodies or kinds."""
 
     def __init__(self, boom: Boom, tunnel: Horseshoe, distances: SafetyDistances, points_per_capsule: int = 16):
         if points_per_capsule < 2:
@@ -92,33 +96,65 @@ class SafetyModel:
             raise ConfigError(f"boom '{boom.name}' defines no collision bodies; the safety model needs them")
         self.boom, self.tunnel, self.distances = boom, tunnel, distances
         self.n_points = int(points_per_capsule)
+        bodies = list(boom.bodies.values())
+        self._names = [b.name for b in bodies]
+        self._end_frames = [spec.frame for b in bodies for spec in (b.start, b.end)]
+        self._end_along = [spec.along_z for b in bodies for spec in (b.start, b.end)]
+        self._radius = [b.radius for b in bodies]
+        self._skip = [b.tunnel_skip_end for b in bodies]
+        self._pairs = [(self._names.index(a), self._names.index(b)) for a, b in boom.self_pairs]
+        self._consts: dict = {}
 
     def with_distances(self, distances: SafetyDistances) -> SafetyModel:
         """The same boom and tunnel with other safety distances (the training penalties')."""
         return SafetyModel(self.boom, self.tunnel, distances, self.n_points)
 
-    def _tunnel_points(self, body: Capsule, start: torch.Tensor, end: torch.Tensor):
-        """``n_points`` points ``(..., P, 3)`` along the part of a capsule's axis checked against the
-        tunnel, and where each lies as a fraction ``(..., P)`` of the way from ``start`` to ``end``."""
-        t = torch.linspace(0.0, 1.0, self.n_points, dtype=start.dtype, device=start.device)
-        axis = end - start
-        if body.tunnel_skip_end:
-            length = safe_norm(axis).unsqueeze(-1)
-            t = t * (1.0 - body.tunnel_skip_end / length.clamp_min(1e-12)).clamp_min(0.0)
-        else:
-            t = t.expand(*start.shape[:-1], -1)
-        return start.unsqueeze(-2) + t.unsqueeze(-1) * axis.unsqueeze(-2), t
+    def _c(self, dtype, device) -> dict[str, torch.Tensor]:
+        key = (dtype, device)
+        if key not in self._consts:
+            t = lambda x: torch.tensor(x, dtype=dtype, device=device)  # noqa: E731
+            self._consts[key] = {
+                "frames": torch.tensor(self._end_frames, device=device), "along": t(self._end_along)[:, None],
+                "radius": t(self._radius), "skip": t(self._skip),
+                "surface": t([getattr(self.distances, k) for k in SURFACES]),
+                "t": torch.linspace(0.0, 1.0, self.n_points, dtype=dtype, device=device),
+            }
+        return self._consts[key]
 
-    def _tunnel_clearances(self, bodies) -> dict[str, torch.Tensor]:
-        """Min clearance to each tunnel surface over every given body's sample points."""
-        worst: dict[str, torch.Tensor] = {}
-        for body, start, end in bodies:
-            pts, _ = self._tunnel_points(body, start, end)
-            dist = self.tunnel.surface_distances(pts[..., 1], pts[..., 2])
-            for kind in SURFACES:
-                c = (dist[kind] - body.radius - getattr(self.distances, kind)).amin(dim=-1)
-                worst[kind] = c if kind not in worst else torch.minimum(worst[kind], c)
-        return worst
+    def body_ends(self, frames: torch.Tensor) -> torch.Tensor:
+        """Start and end of every capsule's axis: ``(..., bodies, 2, 3)``."""
+        c = self._c(frames.dtype, frames.device)
+        F = frames[..., c["frames"], :3, :]
+        return (F[..., 3] + c["along"] * F[..., 2]).reshape(*frames.shape[:-3], len(self._names), 2, 3)
+
+    def _tunnel(self, ends: torch.Tensor, radius: torch.Tensor, skip: torch.Tensor):
+        """Clearance of every sample point to each surface ``(..., 3, bodies * points)``, the points
+        ``(..., bodies * points, 3)`` and where each lies between its body's ends ``(..., bodies * points)``.
+        A body's last ``skip`` metres are not sampled (the feed's front works at the face)."""
+        c = self._c(ends.dtype, ends.device)
+        start, axis = ends[..., 0, :], ends[..., 1, :] - ends[..., 0, :]
+        keep = torch.where(skip > 0, (1.0 - skip / safe_norm(axis).clamp_min(1e-12)).clamp_min(0.0), 1.0)
+        frac = c["t"] * keep.unsqueeze(-1)
+        pts = start.unsqueeze(-2) + frac.unsqueeze(-1) * axis.unsqueeze(-2)
+        dist = self.tunnel.surface_distances(pts[..., 1], pts[..., 2])
+        clear = torch.stack([dist[k] for k in SURFACES], dim=-3) - radius[:, None] - c["surface"][:, None, None]
+        return clear.flatten(-2), pts.flatten(-3, -2), frac.flatten(-2)
+
+    def _self(self, ends: torch.Tensor):
+        """Self clearance (min over the listed pairs), and the minimising pair's closest-point
+        parameters ``s, t`` and body indices (for the gradient)."""
+        best = None
+        for a, b in self._pairs:  # a loop over body pairs (jumbo8: one), batched over configurations
+            (a0, a1), (b0, b1) = ends[..., a, :, :].unbind(-2), ends[..., b, :, :].unbind(-2)
+            dist, s, t = segment_distance(a0, a1, b0, b1)
+            c = dist - self._radius[a] - self._radius[b] - self.distances.self
+            if best is None:
+                best = (c, s, t, torch.full_like(s, a, dtype=torch.long), torch.full_like(s, b, dtype=torch.long))
+            else:
+                take = c < best[0]
+                new = (c, s, t, torch.full_like(best[3], a), torch.full_like(best[4], b))
+                best = tuple(torch.where(take, n, o) for n, o in zip(new, best, strict=True))
+        return best
 
     def clearances(self, q: torch.Tensor) -> dict[str, torch.Tensor]:
         """Per configuration, the margin (m) by which each safety distance is kept.
@@ -131,17 +167,13 @@ class SafetyModel:
         return self.clearances_from_frames(self.boom.frames(q))
 
     def clearances_from_frames(self, frames: torch.Tensor) -> dict[str, torch.Tensor]:
-        ends = {name: self.boom.capsule_ends(frames, name) for name in self.boom.bodies}
-        out = self._tunnel_clearances((self.boom.bodies[n], *ends[n]) for n in self.boom.bodies)
-        selfc = None
-        for a, b in self.boom.self_pairs:
-            dist, _, _ = segment_distance(*ends[a], *ends[b])
-            c = dist - self.boom.bodies[a].radius - self.boom.bodies[b].radius - self.distances.self
-            selfc = c if selfc is None else torch.minimum(selfc, c)
-        if selfc is None:  # no self pairs: self collision cannot happen
-            selfc = torch.full(frames.shape[:-3], math.inf, dtype=frames.dtype, device=frames.device)
-        out["self"] = selfc
-        return {k: out[k] for k in SAFETY_KINDS}
+        c = self._c(frames.dtype, frames.device)
+        ends = self.body_ends(frames)
+        tunnel = self._tunnel(ends, c["radius"], c["skip"])[0].amin(dim=-1)
+        pair = self._self(ends)
+        selfc = pair[0] if pair is not None else torch.full(  # no self pairs: self collision cannot happen
+            frames.shape[:-3], math.inf, dtype=frames.dtype, device=frames.device)
+        return {"self": selfc, **{k: tunnel[..., i] for i, k in enumerate(SURFACES)}}
 
     def clearances_with_jacobians(self, frames: torch.Tensor) -> tuple[dict[str, torch.Tensor], dict]:
         """The clearances of :meth:`clearances_from_frames` and their gradients ``(..., n_joints)``
@@ -151,40 +183,43 @@ class SafetyModel:
         (self), so its gradient is the gradient at the minimising point: the surface's unit normal
         (or the unit vector between the closest points) times that point's geometric Jacobian. The
         feed's checked length is fixed (its length is), so the truncation adds no term."""
-        boom = self.boom
-        axes = boom.joint_axes(frames)
-        ends, jacs = {}, {}
-        for name, body in boom.bodies.items():
-            ends[name] = (boom.point(frames, body.start), boom.point(frames, body.end))
-            jacs[name] = tuple(boom.point_jacobian(frames, p, spec.frame, axes)[0]
-                               for p, spec in zip(ends[name], (body.start, body.end), strict=True))
-        values: dict[str, torch.Tensor] = {}
-        grads: dict[str, torch.Tensor] = {}
-        for name, body in boom.bodies.items():
-            pts, frac = self._tunnel_points(body, *ends[name])
-            dist = self.tunnel.surface_distances(pts[..., 1], pts[..., 2])
-            for kind in SURFACES:
-                c, i = (dist[kind] - body.radius - getattr(self.distances, kind)).min(dim=-1)
-                p = torch.gather(pts, -2, i[..., None, None].expand(*i.shape, 1, 3)).squeeze(-2)
-                a = torch.gather(frac, -1, i.unsqueeze(-1))[..., None]
-                jp = (1 - a) * jacs[name][0] + a * jacs[name][1]
-                gy, gz = self.tunnel.surface_gradients(p[..., 1], p[..., 2])[kind]
-                g = gy.unsqueeze(-1) * jp[..., 1, :] + gz.unsqueeze(-1) * jp[..., 2, :]
-                _keep_min(values, grads, kind, c, g)
-        for a_name, b_name in boom.self_pairs:
-            dist, s, t = segment_distance(*ends[a_name], *ends[b_name])
-            c = dist - boom.bodies[a_name].radius - boom.bodies[b_name].radius - self.distances.self
-            (a0, a1), (b0, b1) = ends[a_name], ends[b_name]
+        boom, c = self.boom, self._c(frames.dtype, frames.device)
+        batch, nb, P = frames.shape[:-3], len(self._names), self.n_points
+        ends = self.body_ends(frames)
+        clear, pts, frac = self._tunnel(ends, c["radius"], c["skip"])
+        values, i = clear.min(dim=-1)  # (..., 3 surfaces)
+        jac = boom.points_jacobian(frames, ends.flatten(-3, -2), c["frames"]).reshape(*batch, nb, 2, 3, -1)
+        body = (i // P)[..., None, None, None].expand(*i.shape, 2, 3, jac.shape[-1])
+        j_ends = torch.gather(jac, -4, body)  # (..., 3 surfaces, 2, 3, n)
+        a = torch.gather(frac, -1, i)[..., None, None]
+        j_point = (1 - a) * j_ends[..., 0, :, :] + a * j_ends[..., 1, :, :]
+        p = torch.gather(pts, -2, i.unsqueeze(-1).expand(*i.shape, 3))
+        normals = self.tunnel.surface_gradients(p[..., 1], p[..., 2])
+        gy = torch.stack([normals[k][0][..., s] for s, k in enumerate(SURFACES)], dim=-1)
+        gz = torch.stack([normals[k][1][..., s] for s, k in enumerate(SURFACES)], dim=-1)
+        tunnel_grad = gy.unsqueeze(-1) * j_point[..., 1, :] + gz.unsqueeze(-1) * j_point[..., 2, :]
+        out = {k: values[..., s] for s, k in enumerate(SURFACES)}
+        grads = {k: tunnel_grad[..., s, :] for s, k in enumerate(SURFACES)}
+        pair = self._self(ends)
+        if pair is None:  # no self pairs: self collision cannot happen
+            out["self"] = torch.full(batch, math.inf, dtype=frames.dtype, device=frames.device)
+            grads["self"] = torch.zeros(*batch, boom.n_joints, dtype=frames.dtype, device=frames.device)
+        else:
+            sc, s, t, ia, ib = pair
+            pick = lambda idx: torch.gather(  # noqa: E731  the two ends of body idx, and their Jacobians
+                ends, -3, idx[..., None, None, None].expand(*idx.shape, 1, 2, 3)).squeeze(-3)
+            pick_j = lambda idx: torch.gather(  # noqa: E731
+                jac, -4, idx[..., None, None, None, None].expand(*idx.shape, 1, 2, 3, jac.shape[-1])).squeeze(-4)
+            ea, eb, ja, jb = pick(ia), pick(ib), pick_j(ia), pick_j(ib)
             s_, t_ = s[..., None], t[..., None]
-            u = ((a0 + s_ * (a1 - a0)) - (b0 + t_ * (b1 - b0))) / dist.clamp_min(1e-12)[..., None]
+            on_a = ea[..., 0, :] + s_ * (ea[..., 1, :] - ea[..., 0, :])
+            gap = on_a - (eb[..., 0, :] + t_ * (eb[..., 1, :] - eb[..., 0, :]))
+            u = gap / safe_norm(gap).clamp_min(1e-12)[..., None]
             s_, t_ = s_[..., None], t_[..., None]
-            j_rel = ((1 - s_) * jacs[a_name][0] + s_ * jacs[a_name][1]
-                     - (1 - t_) * jacs[b_name][0] - t_ * jacs[b_name][1])
-            _keep_min(values, grads, "self", c, (u.unsqueeze(-1) * j_rel).sum(-2))
-        if "self" not in values:  # no self pairs: self collision cannot happen
-            values["self"] = torch.full(frames.shape[:-3], math.inf, dtype=frames.dtype, device=frames.device)
-            grads["self"] = torch.zeros(*frames.shape[:-3], boom.n_joints, dtype=frames.dtype, device=frames.device)
-        return {k: values[k] for k in SAFETY_KINDS}, {k: grads[k] for k in SAFETY_KINDS}
+            j_rel = ((1 - s_) * ja[..., 0, :, :] + s_ * ja[..., 1, :, :]
+                     - (1 - t_) * jb[..., 0, :, :] - t_ * jb[..., 1, :, :])
+            out["self"], grads["self"] = sc, (u.unsqueeze(-1) * j_rel).sum(-2)
+        return {k: out[k] for k in SAFETY_KINDS}, {k: grads[k] for k in SAFETY_KINDS}
 
     def tool_body_clearances(self, p: torch.Tensor, z: torch.Tensor) -> dict[str, torch.Tensor]:
         """Tunnel clearances of the bodies fixed to the tool frame, from a hole pose alone.
@@ -196,7 +231,12 @@ class SafetyModel:
         bodies = [b for b in self.boom.bodies.values() if b.start.frame == tool and b.end.frame == tool]
         if not bodies:
             raise ConfigError(f"boom '{self.boom.name}' has no body fixed to the tool frame")
-        return self._tunnel_clearances((b, p + b.start.along_z * z, p + b.end.along_z * z) for b in bodies)
+        t = lambda x: torch.tensor(x, dtype=p.dtype, device=p.device)  # noqa: E731
+        along = t([[b.start.along_z, b.end.along_z] for b in bodies])  # (bodies, 2)
+        ends = p[..., None, None, :] + along[..., None] * z[..., None, None, :]
+        clear = self._tunnel(ends, t([b.radius for b in bodies]), t([b.tunnel_skip_end for b in bodies]))[0]
+        worst = clear.amin(dim=-1)
+        return {k: worst[..., i] for i, k in enumerate(SURFACES)}
 
     # Both views below derive from the same clearances.
     @staticmethod
@@ -208,12 +248,3 @@ class SafetyModel:
         """Hinge of each clearance (paper 000 eqs. 14-15): zero exactly where the check passes."""
         return {k: torch.relu(-c) for k, c in clearances.items()}
 
-
-def _keep_min(values: dict, grads: dict, kind: str, c: torch.Tensor, g: torch.Tensor) -> None:
-    """Keep, per configuration, the smaller clearance of ``kind`` and its gradient."""
-    if kind not in values:
-        values[kind], grads[kind] = c, g
-        return
-    take = c < values[kind]
-    values[kind] = torch.where(take, c, values[kind])
-    grads[kind] = torch.where(take.unsqueeze(-1), g, grads[kind])

@@ -299,6 +299,17 @@ class Boom:
             linear, angular = linear * moving, angular * moving
         return linear.transpose(-1, -2), angular.transpose(-1, -2)
 
+    def points_jacobian(self, frames: torch.Tensor, points: torch.Tensor, frame_index: torch.Tensor, axes=None):
+        """Linear Jacobians ``(..., E, 3, n_joints)`` of points ``(..., E, 3)``, point ``e`` fixed to
+        frame ``frame_index[e]`` (one call for every capsule end of a boom)."""
+        layout = self._axis_layout(frames.device)
+        axis, origin = self.joint_axes(frames) if axes is None else axes
+        axis, origin = axis.unsqueeze(-3), origin.unsqueeze(-3)  # (..., 1, n, 3)
+        swept = torch.linalg.cross(axis.expand(*points.shape[:-1], -1, 3), points.unsqueeze(-2) - origin, dim=-1)
+        linear = torch.where(layout["revolute"], swept, axis)
+        moving = (layout["moves"] <= frame_index.to(layout["moves"].device).unsqueeze(-1)).unsqueeze(-1)
+        return (linear * moving).transpose(-1, -2)
+
     def pose6_jacobian(self, frames: torch.Tensor, depth: float | None = None, axes=None) -> torch.Tensor:
         """``d pose6 / d q``: ``(..., 6, n_joints)``, the collar rows then the preview rows
         (``p' = p + D z``, so its rows add ``D (w x z)``)."""

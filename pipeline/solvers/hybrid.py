@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from pipeline.core.errors import InputError
+from pipeline.core.errors import ConfigError, InputError
 from pipeline.core.settings import rule
 from pipeline.geometry.collision import SAFETY_KINDS, SafetyModel
 from pipeline.solvers.base import HoleTargets, JointSpace, Solver, SolveResult, Targets, tool_transform
@@ -58,7 +58,7 @@ class HybridSettings:
 
     def __post_init__(self):
         if self.reach_tol_mm < self.tol_mm:
-            raise ValueError(f"hybrid: reach_tol_mm = {self.reach_tol_mm} must be >= tol_mm = {self.tol_mm}")
+            raise ConfigError(f"hybrid: reach_tol_mm = {self.reach_tol_mm} must be >= tol_mm = {self.tol_mm}")
 
 
 @dataclass
@@ -91,21 +91,27 @@ class HybridSolver(Solver):
         return torch.where(self.wraps.to(x.device), wrapped, torch.maximum(torch.minimum(x, hi), lo))
 
     def _rows(self, x: torch.Tensor, target: torch.Tensor, use_safety: bool):
-        """Stacked residual ``(B, m)``, its Jacobian ``(B, m, n)``, hole error ``(B,)``, clearances ``(B, 4)``."""
+        """Stacked residual ``(B, m)``, its Jacobian ``(B, m, n)``, hole error ``(B,)``, clearances ``(B, 4)``.
+
+        Clearance gradients are computed only for the configurations with a clearance row active
+        (below ``margin``): from a network's answer that is a small share, and the rest of the batch
+        pays only for the clearance values."""
         boom, s = self.boom, self.s
-        q = self.space.full(x)
-        frames = boom.frames(q)
-        axes = boom.joint_axes(frames)
+        frames = boom.frames(self.space.full(x))
         r = boom.pose6_from_frames(frames) - target
-        J = boom.pose6_jacobian(frames, axes=axes)[..., self.space.free]
+        J = boom.pose6_jacobian(frames)[..., self.space.free]
         hole = 0.5 * (r[:, :3].norm(dim=-1) + r[:, 3:].norm(dim=-1))
-        values, grads = self.safety.clearances_with_jacobians(frames)
+        values = self.safety.clearances_from_frames(frames)
         c = torch.stack([values[k] for k in SAFETY_KINDS], dim=-1)
         if use_safety:
-            active = (c < s.margin).to(c.dtype)
-            w = s.clearance_weight * active
+            active = c < s.margin
+            w = s.clearance_weight * active.to(c.dtype)
+            G = torch.zeros(*c.shape, self.space.n, dtype=c.dtype)
+            rows = active.any(dim=-1).nonzero().flatten()
+            if len(rows):
+                _, grads = self.safety.clearances_with_jacobians(frames[rows])
+                G[rows] = torch.stack([grads[k] for k in SAFETY_KINDS], dim=-2)[..., self.space.free]
             r = torch.cat([r, w * (c - s.margin)], dim=-1)
-            G = torch.stack([grads[k] for k in SAFETY_KINDS], dim=-2)[..., self.space.free]
             J = torch.cat([J, w.unsqueeze(-1) * G], dim=-2)
         return r, J, hole, c
 

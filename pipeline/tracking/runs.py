@@ -331,3 +331,20 @@ def log_training_progress(run: StageRun, step: int, steps: int, record: Mapping[
         log.info("train %s: step %d/%d (%.0f %%), loss %.4g, held-out %.2f mm, %.0f s elapsed, ~%.0f s left",
                  method, step + 1, steps, 100 * done, record.get("loss", math.nan), record.get("val_hole_mm", math.nan),
                  elapsed, left)
+
+
+def load_logged_network(uri: str, settings: TrackingSettings):
+    """A network logged by ``train`` (``runs:/<id>/model``, ``models:/<name>@<alias>``), on the CPU,
+    in eval mode; a URI MLflow cannot resolve is named with MLflow's own reason."""
+    import mlflow
+    import mlflow.pytorch
+    from mlflow.exceptions import MlflowException
+
+    from pipeline.core.errors import InputError
+
+    mlflow.set_tracking_uri(settings.uri)
+    try:
+        model = mlflow.pytorch.load_model(uri, map_location="cpu")
+    except (MlflowException, OSError) as exc:
+        raise InputError(f"solve.model_uri = {uri}: cannot load it from {settings.uri} ({exc})") from None
+    return model.eval()

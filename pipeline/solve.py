@@ -1,0 +1,150 @@
+"""Stage ``solve``: a drill plan in, exact and collision-free joints out, an honest status per hole.
+
+    python -m pipeline.solve plan=data/plans/demo_face.csv
+    python -m pipeline.solve plan=round_42.xml out=round_42_joints.csv strict=true
+    python -m pipeline.solve plan=round_42.csv solve.model_uri=models:/boom-ik-cuikm@champion
+
+Reads a CSV or IREDES plan (bad rows are reported with their row and id, the good ones solved),
+solves every hole with the hybrid solver (:mod:`pipeline.solvers.hybrid`), and writes
+``<plan stem>_solution.csv`` beside the plan (or ``out``): per hole the joints (rad, m), start,
+preview and hole-seeking error (mm), the four clearances (m), ``status`` (ok, inexact, unsafe,
+unreachable; invalid for unreadable rows) and ``method``; plus ``<stem>_solution.png`` (the face by
+status and the boom where it matters) and ``<stem>_solution.json`` (counts and timing). Logs an
+MLflow run. With ``strict=true`` it exits with status 1 unless every hole is ok.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import hydra
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from pipeline.core.build import build_safety, load_boom
+from pipeline.core.config import project_path
+from pipeline.core.device import configure_process
+from pipeline.core.errors import ConfigError
+from pipeline.core.io import require_writable, save_figure, write_csv, write_json
+from pipeline.core.settings import coerce, parse, rule
+from pipeline.data.plans import COLLAR, read_plan
+from pipeline.data.solutions import CLEARANCE_COLUMNS, solution_frame, status_counts
+from pipeline.evaluation.plots import solution_figure
+from pipeline.learning.models import check_network_fits, load_checkpoint
+from pipeline.solvers.base import HoleTargets, NetworkSolver
+from pipeline.solvers.hybrid import HybridSettings, HybridSolver
+from pipeline.tracking.runs import TrackingSettings, load_logged_network, stage_run
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SolveSettings:
+    """The ``solve`` node (the hybrid solver's own settings are parsed apart)."""
+
+    network: str = "cuikm"
+    model_uri: str | None = None
+    figure: bool = True
+    max_boom_views: int = field(default=6, metadata=rule(ge=0))
+    iredes: dict = field(default_factory=dict)
+    solver: dict = field(default_factory=dict)
+
+
+def run(cfg: DictConfig) -> dict:
+    settings = parse(SolveSettings, cfg.solve, "solve")
+    hybrid = parse(HybridSettings, settings.solver, "solve.solver")
+    tracking = TrackingSettings.from_config(cfg.tracking)
+    plan_path = project_path(coerce(cfg.plan, "str", "plan"))
+    out = project_path(cfg.out) if cfg.get("out") else plan_path.with_name(f"{plan_path.stem}_solution.csv")
+    strict = coerce(cfg.get("strict", False), "bool", "strict")
+    boom = load_solve_boom(cfg.boom, cfg.get("boom_model"))
+    safety = build_safety(boom, cfg.tunnel, cfg.safety)
+    network = load_network(settings, project_path(cfg.paths.data) / "models", boom, tracking)
+    plan = read_plan(plan_path, **(iredes_options(settings.iredes) if plan_path.suffix.lower() == ".xml" else {}))
+    require_writable(out.parent, "out (its folder)")
+    for line in plan.report():
+        log.warning("skipped: %s", line)
+    method = f"hybrid ({settings.model_uri or settings.network})"
+    with stage_run(tracking, f"solve-{plan_path.stem}", {"stage": "solve", "plan": str(plan_path)}) as mlrun:
+        mlrun.log_params({"plan": str(plan_path), "solve": OmegaConf.to_container(cfg.solve, resolve=True),
+                          "boom_model": str(cfg.get("boom_model"))})
+        mlrun.log_dataset(plan.holes, plan_path, "drill plan")
+        solver = HybridSolver(boom, safety, NetworkSolver(boom, network, settings.network), hybrid)
+        result = solver.solve(HoleTargets(plan.poses(boom.preview_depth), boom.preview_depth))
+        table = solution_frame(plan, result, boom.joint_names, method)
+        summary = {"holes": len(plan), "invalid_rows": len(plan.problems), **status_counts(table),
+                   "hole_mm_max": float(table["hole_mm"].max()), "solve_s": result.wall_s,
+                   "ms_per_hole": 1000 * result.wall_s / len(plan)}
+        write_csv(table, out)
+        write_json({"plan": str(plan_path), "method": method, **summary}, out.with_suffix(".json"))
+        mlrun.log_metrics(summary)
+        mlrun.log_table(table, "solution.json")
+        mlrun.log_artifact(out)
+        if settings.figure:
+            fig = solution_figure(table, plan.holes[COLLAR].to_numpy(), safety.tunnel,
+                                  boom_views(table, result.q, safety, settings.max_boom_views), safety.distances.wall)
+            save_figure(fig, out.with_suffix(".png"))
+            mlrun.log_figure(fig, "solution.png")
+    log.info("solved %d holes in %.2f s (%.3f ms/hole): %s -> %s", len(plan), result.wall_s, summary["ms_per_hole"],
+             status_counts(table), out)
+    if strict and summary["ok"] != len(plan) + len(plan.problems):
+        raise SystemExit(f"strict: {len(table) - summary['ok']} of {len(table)} holes are not ok (see {out})")
+    return summary
+
+
+def load_solve_boom(boom_cfg, boom_model):
+    """The nominal boom of ``boom/``, or a calibrated one (``boom_model=<file>``)."""
+    if not boom_model:
+        return load_boom(boom_cfg)
+    from pipeline.calibration.model_file import load_boom_model
+
+    return load_boom_model(project_path(boom_model))
+
+
+def load_network(settings: SolveSettings, models_dir: Path, boom, tracking: TrackingSettings):
+    """The starting network: an MLflow model URI, or ``models_dir/<network>.pt``."""
+    if settings.model_uri:
+        return check_network_fits(load_logged_network(settings.model_uri, tracking), boom, settings.model_uri)
+    path = models_dir / f"{settings.network}.pt"
+    return check_network_fits(load_checkpoint(path)[0], boom, str(path))
+
+
+def iredes_options(node: dict) -> dict:
+    allowed = {"axes", "unit", "origin", "checksum"}
+    unknown = sorted(set(node) - allowed)
+    if unknown:
+        raise ConfigError(f"solve.iredes: unknown setting(s) {unknown}; allowed: {sorted(allowed)}")
+    return {k: tuple(v) if k == "origin" else v for k, v in node.items()}
+
+
+def boom_views(table, q: torch.Tensor, safety, limit: int) -> list[dict]:
+    """Where to draw the boom: the ok hole with the smallest clearance, then every hole that is
+    not ok (up to ``limit`` drawings in all)."""
+    solved = table[table["status"] != "invalid"].reset_index(drop=True)
+    worst = solved[CLEARANCE_COLUMNS].min(axis=1).to_numpy()
+    ok = (solved["status"] == "ok").to_numpy()
+    picks = [int(np.flatnonzero(ok)[np.argmin(worst[ok])])] if ok.any() else []
+    picks += [int(i) for i in np.flatnonzero(~ok)]
+    views = []
+    boom = safety.boom
+    frames = boom.frames(q[picks[:limit]]) if picks else None
+    for k, i in enumerate(picks[:limit]):
+        capsules = [(name, *(p.numpy() for p in boom.capsule_ends(frames[k], name)), body.radius)
+                    for name, body in boom.bodies.items()]
+        row = solved.iloc[i]
+        title = f"{row['hole_id']} ({row['status']}, min clearance {worst[i]:.3f} m)"
+        views.append({"hole_id": row["hole_id"], "status": row["status"], "title": title, "capsules": capsules})
+    return views
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+def main(cfg: DictConfig) -> None:
+    configure_process(cfg.benchmark.threads)
+    run(cfg)
+
+
+if __name__ == "__main__":
+    main()
