@@ -20,10 +20,15 @@ from omegaconf import DictConfig
 
 from pipeline.core.build import build_safety, hole_sampling
 from pipeline.core.config import as_dict, project_path
+from pipeline.core.io import save_figure
 from pipeline.core.settings import parse, rule
 from pipeline.data.hole_sets import build_hole_sets, write_hole_sets
+from pipeline.data.holes import joint_box
 from pipeline.data.iredes import write_iredes_plan
 from pipeline.data.plans import demo_face, write_csv_plan
+from pipeline.data.tables import POSE_COLUMNS
+from pipeline.evaluation.plots import collar_clouds
+from pipeline.tracking.runs import TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
 DEMO_PLAN_DATE = "2026-01-01T00:00:00"  # fixed, so the same seeds give byte-identical files
@@ -46,15 +51,30 @@ def run(cfg: DictConfig) -> dict:
     t0 = time.perf_counter()
     unsup, sup = parse(SetSize, cfg.holes.unsup, "holes.unsup"), parse(SetSize, cfg.holes.sup, "holes.sup")
     test = parse(TestGroups, cfg.holes.test, "holes.test")
+    tracking = TrackingSettings.from_config(cfg.tracking)
     safety = build_safety(cfg.boom, cfg.tunnel, cfg.safety)
-    tables, meta = build_hole_sets(safety, hole_sampling(cfg.holes), unsup.size, unsup.seed, sup.size, sup.seed,
-                                   test.size, list(test.seeds))
-    meta["config"] = {k: as_dict(cfg[k]) for k in ("boom", "tunnel", "safety", "holes")}
-    out = project_path(cfg.paths.data) / "holes"
-    written = write_hole_sets(tables, meta, out)  # only after every table is built
-    written += write_demo_plan(safety, project_path(cfg.paths.data) / "plans")
+    box = cfg.holes.sup.get("box")
+    box = None if box is None else as_dict(box)
+    joint_box(safety.boom, box)  # a bad box fails here, before any sampling
+    data = project_path(cfg.paths.data)
+    with stage_run(tracking, "generate", {"stage": "generate"}) as mlrun:
+        mlrun.log_params({k: as_dict(cfg[k]) for k in ("holes", "safety", "tunnel")})
+        tables, meta = build_hole_sets(safety, hole_sampling(cfg.holes), unsup.size, unsup.seed, sup.size, sup.seed,
+                                       test.size, list(test.seeds), box)
+        meta["config"] = {k: as_dict(cfg[k]) for k in ("boom", "tunnel", "safety", "holes")}
+        fig = collar_clouds({"Omega_sup": tables["sup.parquet"][POSE_COLUMNS].to_numpy(),
+                             "Omega_unsup": tables["train.parquet"][POSE_COLUMNS].to_numpy()}, safety.tunnel,
+                            {"Omega_sup": meta["sup_face_window_share"]})
+        written = write_hole_sets(tables, meta, data / "holes")  # only after every table is built
+        written += write_demo_plan(safety, data / "plans")
+        save_figure(fig, data / "figures" / "collar_clouds.png")
+        mlrun.log_figure(fig, "figures/collar_clouds.png")
+        mlrun.log_metrics({"unsup_rejection_rate": meta["unsup_rejection"]["rejection_rate"],
+                           "sup_face_window_share": meta["sup_face_window_share"],
+                           **{f"sup_violation_share.{k}": v for k, v in meta["sup_violation_share"].items()}})
+        mlrun.log_artifact(data / "holes" / "meta.json")
     log.info("wrote %d files to %s in %.1f s; Omega_unsup rejection rate %.1f %%; Omega_sup violation share %s",
-             len(written), out, time.perf_counter() - t0, 100 * meta["unsup_rejection"]["rejection_rate"],
+             len(written), data / "holes", time.perf_counter() - t0, 100 * meta["unsup_rejection"]["rejection_rate"],
              {k: round(v, 4) for k, v in meta["sup_violation_share"].items()})
     return meta
 

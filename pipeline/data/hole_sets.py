@@ -11,6 +11,7 @@ import json
 import os
 import shutil
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 
 import pandas as pd
@@ -18,7 +19,7 @@ import torch
 
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.core.io import file_md5, write_json, write_parquet
-from pipeline.data.holes import HoleSampling, sample_holes, sample_joints
+from pipeline.data.holes import HoleSampling, in_face_window, sample_holes, sample_joints
 from pipeline.data.tables import POSE_COLUMNS, check_table, holes_frame, joints_frame
 from pipeline.geometry.collision import SAFETY_KINDS, SafetyModel
 
@@ -34,8 +35,10 @@ def build_hole_sets(
     sup_seed: int,
     test_size: int,
     test_seeds: list[int],
+    sup_box: Mapping | None = None,
 ) -> tuple[dict[str, pd.DataFrame], dict]:
-    """All hole tables by file name, and the statistics that go into ``meta.json``."""
+    """All hole tables by file name, and the statistics that go into ``meta.json``. Omega_sup's
+    joints are uniform in ``sup_box`` (the working box; None: the full mechanical ranges)."""
     seeds = [unsup_seed, sup_seed, *test_seeds]
     if len(set(seeds)) != len(seeds):
         raise ConfigError(f"holes: seeds must all differ (unsup, sup, test...), got {seeds}")
@@ -48,9 +51,10 @@ def build_hole_sets(
         tables[f"test_group_{k}.parquet"] = holes_frame(poses)
         test_stats.append(stats)
     boom = safety.boom
-    q = sample_joints(sup_size, boom, sup_seed)
+    q = sample_joints(sup_size, boom, sup_seed, sup_box)
     frames = boom.frames(q)
-    sup = pd.concat([joints_frame(q, boom.joint_names), holes_frame(boom.pose6_from_frames(frames))], axis=1)
+    sup_pose = boom.pose6_from_frames(frames)
+    sup = pd.concat([joints_frame(q, boom.joint_names), holes_frame(sup_pose)], axis=1)
     tables["sup.parquet"] = sup[["hole_id", *boom.joint_names, *POSE_COLUMNS]]
     violated = safety.violations(safety.clearances_from_frames(frames))
     any_violation = torch.stack([violated[k] for k in SAFETY_KINDS]).any(dim=0)
@@ -59,6 +63,8 @@ def build_hole_sets(
         "seeds": {"unsup": unsup_seed, "sup": sup_seed, "test": list(test_seeds)},
         "unsup_rejection": train_stats,
         "test_rejection": test_stats,
+        "sup_face_window_share": float(in_face_window(sup_pose, safety.tunnel).double().mean()),
+        "sup_box": None if sup_box is None else {k: list(v) for k, v in sup_box.items()},
         "sup_violation_share": {
             **{k: float(violated[k].double().mean()) for k in SAFETY_KINDS},
             "any": float(any_violation.double().mean()),

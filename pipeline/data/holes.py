@@ -9,6 +9,7 @@ the (few) batches are looped over, never the holes.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import torch
@@ -113,10 +114,50 @@ def sample_holes(
     return torch.cat(poses)[:n], stats
 
 
-def sample_joints(n: int, boom, seed: int) -> torch.Tensor:
-    """``(n, n_joints)`` joints uniform over their ranges (locked joints at their lock)."""
+def joint_box(boom, box: Mapping | None, where: str = "holes.sup.box") -> tuple[torch.Tensor, torch.Tensor]:
+    """Lower and upper bounds ``(n_joints,)`` in SI units of a working box given per joint in degrees
+    (revolute) or metres (prismatic); joints it leaves out, and ``box=None``, keep their full range.
+    A box must lie within the joint limits and have positive width."""
+    lo, hi = (b.clone() for b in boom.limits(DTYPE))
+    if box is None:
+        return lo, hi
+    unknown = sorted(set(box) - set(boom.joint_names))
+    if unknown:
+        raise ConfigError(f"{where}: unknown joint(s) {unknown}; boom '{boom.name}' has {boom.joint_names}")
+    for name, bounds in box.items():
+        i = boom.joint_names.index(name)
+        joint = boom.joints[i]
+        unit = "deg" if joint.revolute else "m"
+        if (isinstance(bounds, (str, bytes)) or not isinstance(bounds, Sequence) or len(bounds) != 2
+                or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in bounds)):
+            raise ConfigError(f"{where}.{name} = {bounds!r}: expected [lower, upper] in {unit}")
+        scale = math.pi / 180 if joint.revolute else 1.0
+        b_lo, b_hi = bounds[0] * scale, bounds[1] * scale
+        if not b_lo < b_hi:
+            raise ConfigError(f"{where}.{name} = {list(bounds)!r}: empty box (lower must be below upper)")
+        tol = 1e-9
+        if joint.locked is not None or b_lo < lo[i] - tol or b_hi > hi[i] + tol:
+            limits = [round(float(lo[i]) / scale, 6), round(float(hi[i]) / scale, 6)]
+            raise ConfigError(f"{where}.{name} = {list(bounds)!r} {unit}: outside the joint's range {limits}"
+                              + (" (the joint is locked)" if joint.locked is not None else ""))
+        lo[i], hi[i] = max(b_lo, float(lo[i])), min(b_hi, float(hi[i]))
+    return lo, hi
+
+
+def sample_joints(n: int, boom, seed: int, box: Mapping | None = None) -> torch.Tensor:
+    """``(n, n_joints)`` joints uniform within ``box`` (:func:`joint_box`; default: the full ranges,
+    locked joints at their lock)."""
     if n <= 0:
         raise ConfigError(f"hole count = {n!r}: expected a positive integer")
     gen = torch.Generator().manual_seed(int(seed))
-    lo, hi = boom.limits(DTYPE)
+    lo, hi = joint_box(boom, box)
     return lo + torch.rand(n, boom.n_joints, generator=gen, dtype=DTYPE) * (hi - lo)
+
+
+def in_face_window(pose: torch.Tensor, tunnel: Horseshoe, x_range=(5.5, 7.5), max_angle_deg: float = 30.0):
+    """Boolean ``(n,)``: the collar lies in the face window (x in ``x_range``, inside the profile) and
+    the hole points within ``max_angle_deg`` of +x (the spec's measure of a face-like pose)."""
+    p, d = pose[:, :3], pose[:, 3:] - pose[:, :3]
+    cos = d[:, 0] / d.norm(dim=-1).clamp_min(1e-12)
+    return ((p[:, 0] >= x_range[0]) & (p[:, 0] <= x_range[1]) & tunnel.contains(p[:, 1], p[:, 2])
+            & (cos >= math.cos(math.radians(max_angle_deg))))

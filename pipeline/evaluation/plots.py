@@ -186,3 +186,23 @@ def solution_figure(table: pd.DataFrame, collars: np.ndarray, tunnel: Horseshoe,
             if j == 0:
                 ax.legend(fontsize=7, loc="upper left")
     return fig
+
+
+def collar_clouds(sets: dict[str, np.ndarray], tunnel: Horseshoe, shares: dict[str, float] | None = None):
+    """Paper 000 Fig. 5: the collar points of each hole set, front (y-z, with the profile) and side
+    (x-z) projections; ``sets`` maps a name to its ``(n, 6)`` poses."""
+    fig, axes = figure(2, len(sets), figsize=(5.2 * len(sets), 8.5), squeeze=False)
+    ys, zs = tunnel.profile_polyline()
+    for j, (name, pose) in enumerate(sets.items()):
+        front, side = axes[0][j], axes[1][j]
+        front.plot(ys, zs, color="k", lw=1)
+        front.scatter(pose[:, 1], pose[:, 2], s=1, alpha=0.3)
+        share = f", {100 * shares[name]:.0f} % in the face window" if shares and name in shares else ""
+        front.set(aspect="equal", xlabel="y (m)", ylabel="z (m)", title=f"{name}: collars, front{share}",
+                  xlim=(-6, 6), ylim=(-3, 9))
+        side.scatter(pose[:, 0], pose[:, 2], s=1, alpha=0.3)
+        side.axhline(0.0, color="k", lw=1)
+        side.axhline(tunnel.crown, color="k", lw=1)
+        side.set(xlabel="x (m)", ylabel="z (m)", title=f"{name}: collars, side", xlim=(-2, 10), ylim=(-3, 9))
+    fig.tight_layout()
+    return fig

@@ -55,6 +55,8 @@ class HybridSettings:
     random_starts: int = field(default=16, metadata=rule(ge=0))
     perturb: float = field(default=0.05, metadata=rule(gt=0))  # start noise, fraction of each joint's range
     seed: int = field(default=0, metadata=rule(ge=0))
+    # among ok solutions of a hole: the largest clearance, or the nearest to the start (least joint motion)
+    prefer: str = field(default="clearance", metadata=rule(choices=("clearance", "start")))
 
     def __post_init__(self):
         if self.reach_tol_mm < self.tol_mm:
@@ -157,9 +159,10 @@ class HybridSolver(Solver):
         return Candidates(self.space.full(x_out), hole_out, c_out, iters)
 
     # ------------------------------------------------------------------ statuses
-    def rank(self, cand: Candidates) -> tuple[torch.Tensor, torch.Tensor]:
+    def rank(self, cand: Candidates, reference: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Status index (into STATUSES) and a score to minimise, per candidate: ok prefers the
-        largest clearance, inexact the smallest error, unsafe the smallest violation."""
+        largest clearance (or, with ``prefer: start``, the least motion from ``reference``, in
+        fractions of each joint's range), inexact the smallest error, unsafe the smallest violation."""
         tol, reach = self.s.tol_mm / 1000, self.s.reach_tol_mm / 1000
         worst = cand.clearances.min(dim=-1).values
         exact, clear = cand.hole_error <= tol, worst >= 0
@@ -168,11 +171,16 @@ class HybridSolver(Solver):
         status = torch.where(clear & (cand.hole_error <= reach), torch.full_like(status, 1), status)
         status = torch.where(exact & clear, torch.full_like(status, 0), status)
         key = torch.where((status == 0) | (status == 2), -worst.clamp(-10, 10), cand.hole_error.clamp(max=1e3))
+        if self.s.prefer == "start" and reference is not None:
+            span = self.space.upper - self.space.lower
+            motion = (((cand.q - reference)[:, self.space.free] / span) ** 2).sum(-1)
+            key = torch.where(status == 0, motion, key)
         return status, status.double() * 1e6 + key
 
-    def best_of(self, cand: Candidates, holes: int) -> tuple[Candidates, torch.Tensor]:
-        """The best of ``K`` candidates per hole (laid out hole-major, ``holes * K``)."""
-        status, score = self.rank(cand)
+    def best_of(self, cand: Candidates, holes: int, reference: torch.Tensor) -> tuple[Candidates, torch.Tensor]:
+        """The best of ``K`` candidates per hole (laid out hole-major, ``holes * K``); ``reference``
+        ``(holes, n_joints)`` is each hole's start."""
+        status, score = self.rank(cand, reference.repeat_interleave(len(cand.q) // holes, dim=0))
         k = len(status) // holes
         pick = score.reshape(holes, k).argmin(dim=1) + torch.arange(holes) * k
         it = cand.iterations.reshape(holes, k).sum(dim=1)
@@ -228,7 +236,7 @@ class HybridSolver(Solver):
         groups = [_reshape(c, H, 1) for c in per_hole] + [_reshape(c, H, K) for c in per_hole_k]
         merged = Candidates(*(torch.cat([getattr(g, f) for g in groups], dim=1).flatten(0, 1)
                               for f in ("q", "hole_error", "clearances", "iterations")))
-        chosen, chosen_status = self.best_of(merged, H)
+        chosen, chosen_status = self.best_of(merged, H, q_net[todo])
         out = Candidates(best.q.clone(), best.hole_error.clone(), best.clearances.clone(), best.iterations.clone())
         out.q[todo], out.hole_error[todo], out.clearances[todo], out.iterations[todo] = (
             chosen.q, chosen.hole_error, chosen.clearances, chosen.iterations)
