@@ -23,12 +23,13 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from pipeline.core.build import build_safety
-from pipeline.core.config import project_path
+from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import configure_process
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import save_figure, write_csv, write_json, write_text
 from pipeline.core.settings import parse, rule
 from pipeline.data.hole_sets import read_hole_poses
+from pipeline.data.holes import joint_box
 from pipeline.evaluation.markdown import markdown_table
 from pipeline.evaluation.metrics import solution_table, summarize
 from pipeline.evaluation.plots import error_vs_time
@@ -94,7 +95,8 @@ def markdown(df: pd.DataFrame) -> str:
     return markdown_table(fmt)
 
 
-def build_solvers(methods: list[str], specs: dict, safety, models_dir) -> dict[str, tuple[Solver, float]]:
+def build_solvers(methods: list[str], specs: dict, safety, models_dir,
+                  start_box=None) -> dict[str, tuple[Solver, float]]:
     """Every solver built (networks loaded, RBF fitted) before the first solve: fail early."""
     unknown = [m for m in methods if m not in specs]
     if unknown:
@@ -102,7 +104,7 @@ def build_solvers(methods: list[str], specs: dict, safety, models_dir) -> dict[s
     solvers = {}
     for m in methods:
         start = time.perf_counter()
-        solver = build_solver(m, specs[m], safety.boom, models_dir, specs, safety)
+        solver = build_solver(m, specs[m], safety.boom, models_dir, specs, safety, start_box)
         if hasattr(solver, "fit"):
             solver.fit()
         solvers[m] = (solver, time.perf_counter() - start)
@@ -115,8 +117,9 @@ def run(cfg: DictConfig) -> pd.DataFrame:
     data, out = project_path(cfg.paths.data), project_path(cfg.paths.data) / "benchmark"
     safety = build_safety(cfg.boom, cfg.tunnel, cfg.safety)
     pose = load_holes(data / "holes", settings.group, settings.holes)
+    box = cfg.holes.sup.get("box")
     solvers = build_solvers(settings.methods, OmegaConf.to_container(cfg.benchmark.solvers, resolve=True),
-                            safety, data / "models")
+                            safety, data / "models", joint_box(safety.boom, None if box is None else as_dict(box)))
     machine = {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
                "torch": torch.__version__, "threads": torch.get_num_threads(), "group": settings.group,
                "holes": settings.holes}

@@ -25,11 +25,12 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from pipeline.core.build import build_safety, load_boom
-from pipeline.core.config import project_path
+from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import configure_process
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import require_writable, save_figure, write_csv, write_json
 from pipeline.core.settings import coerce, parse, rule
+from pipeline.data.holes import joint_box
 from pipeline.data.plans import COLLAR, read_plan
 from pipeline.data.solutions import CLEARANCE_COLUMNS, solution_frame, status_counts
 from pipeline.evaluation.plots import solution_figure
@@ -72,7 +73,9 @@ def run(cfg: DictConfig) -> dict:
         mlrun.log_params({"plan": str(plan_path), "solve": OmegaConf.to_container(cfg.solve, resolve=True),
                           "boom_model": str(cfg.get("boom_model"))})
         mlrun.log_dataset(plan.holes, plan_path, "drill plan")
-        solver = HybridSolver(boom, safety, NetworkSolver(boom, network, settings.network), hybrid)
+        box = cfg.holes.sup.get("box")  # random starts within the working box
+        solver = HybridSolver(boom, safety, NetworkSolver(boom, network, settings.network), hybrid, "hybrid",
+                              joint_box(boom, None if box is None else as_dict(box)))
         result = solver.solve(HoleTargets(plan.poses(boom.preview_depth), boom.preview_depth))
         table = solution_frame(plan, result, boom.joint_names, method)
         summary = {"holes": len(plan), "invalid_rows": len(plan.problems), **status_counts(table),

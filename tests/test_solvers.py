@@ -12,7 +12,7 @@ from pipeline.core.build import load_boom
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.geometry.rotations import align, rotation_angle, rpy
 from pipeline.solvers import build_solver
-from pipeline.solvers.base import FrameTargets, HoleTargets, JointSpace, tool_transform
+from pipeline.solvers.base import FrameTargets, HoleTargets, JointSpace, Solver, tool_transform
 from pipeline.solvers.ga import GAParams, GeneticIK
 from pipeline.solvers.nm import NMSolver
 from pipeline.solvers.pso import ParticleSwarm, params_for
@@ -104,12 +104,12 @@ def test_nm_polishes_a_rough_start_without_leaving_its_neighbourhood(jumbo8):
                                                        dtype=torch.float64) - 1))
     targets = HoleTargets(jumbo8.pose6(q), jumbo8.preview_depth)
 
-    class Rough:  # a stand-in for the network: the true joints plus 0.02 of noise
-        def solve(self, t):
+    class Rough(Solver):  # a stand-in for the network: the true joints plus 0.02 of noise
+        def _solve(self, t):
             noise = 0.02 * torch.randn(q.shape, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
-            return type("R", (), {"q": JointSpace(jumbo8).clamp(q + noise)})
+            return JointSpace(jumbo8).clamp(q + noise), torch.ones(len(q), dtype=torch.long)
 
-    result = NMSolver(jumbo8, max_iters=10, init=Rough()).solve(targets)
+    result = NMSolver(jumbo8, max_iters=10, init=Rough(jumbo8)).solve(targets)
     assert result.errors["hole"].max() < 1e-6
     assert (result.q - q).abs().max() < 0.2
 

@@ -32,12 +32,13 @@ def _init_solver(name: str, init, boom: Boom, models_dir: Path, specs: Mapping |
 
 
 def build_solver(name: str, spec: Mapping, boom: Boom, models_dir: Path, specs: Mapping | None = None,
-                 safety: SafetyModel | None = None) -> Solver:
+                 safety: SafetyModel | None = None, start_box=None) -> Solver:
     """A solver from its config entry ``spec`` (``kind`` plus that solver's parameters).
 
     ``kind: network`` loads ``models_dir/<network or name>.pt``; an ``nm`` or ``hybrid`` entry with
     ``init`` starts from another entry of ``specs`` (e.g. a network) instead of the home pose; a
-    ``hybrid`` entry needs the ``safety`` model it keeps."""
+    ``hybrid`` entry needs the ``safety`` model it keeps, and draws its random starts within
+    ``start_box`` (lower, upper joints; the working box) when given."""
     spec = dict(spec)
     kind = spec.pop("kind", None)
     if kind not in SOLVER_KINDS:
@@ -47,7 +48,8 @@ def build_solver(name: str, spec: Mapping, boom: Boom, models_dir: Path, specs: 
             if safety is None:
                 raise ConfigError(f"benchmark.solvers.{name}: the hybrid solver needs the safety model")
             init = _init_solver(name, spec.pop("init", None), boom, models_dir, specs, safety)
-            return HybridSolver(boom, safety, init, parse(HybridSettings, spec, f"benchmark.solvers.{name}"), name)
+            settings = parse(HybridSettings, spec, f"benchmark.solvers.{name}")
+            return HybridSolver(boom, safety, init, settings, name, start_box)
         if kind == "network":
             from pipeline.learning.models import check_network_fits, load_checkpoint
 

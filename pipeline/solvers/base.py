@@ -189,6 +189,12 @@ class Solver:
     def _solve(self, targets: Targets) -> tuple[torch.Tensor, torch.Tensor]:
         raise NotImplementedError
 
+    def joints(self, targets: Targets) -> torch.Tensor:
+        """Only the joints ``(B, n_joints)`` float64: no timing, no error evaluation (a solver that
+        starts another one needs nothing more)."""
+        with torch.no_grad():
+            return self._solve(targets)[0].double()
+
     def solve(self, targets: Targets) -> SolveResult:
         if len(targets) == 0:
             raise InputError(f"{self.name}: no targets to solve")

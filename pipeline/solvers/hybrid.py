@@ -36,7 +36,8 @@ import torch
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.core.settings import rule
 from pipeline.geometry.collision import SAFETY_KINDS, SafetyModel
-from pipeline.solvers.base import HoleTargets, JointSpace, Solver, SolveResult, Targets, tool_transform
+from pipeline.geometry.kinematics import pose_errors
+from pipeline.solvers.base import HoleTargets, JointSpace, Solver, SolveResult, Targets
 
 STATUSES = ("ok", "inexact", "unsafe", "unreachable")
 
@@ -50,9 +51,12 @@ class HybridSettings:
     max_iters: int = field(default=12, metadata=rule(ge=1))  # LM iterations per start
     damping: float = field(default=1e-3, metadata=rule(gt=0))
     margin: float = field(default=0.002, metadata=rule(ge=0))  # m kept beyond each safety distance
+    guard: float = field(default=0.1, metadata=rule(gt=0))  # m: clearances this far above are not re-measured each step
     clearance_weight: float = field(default=1.0, metadata=rule(gt=0))
     perturbed_starts: int = field(default=8, metadata=rule(ge=0))
     random_starts: int = field(default=16, metadata=rule(ge=0))
+    deep_starts: int = field(default=128, metadata=rule(ge=0))  # last resort: many random starts ...
+    deep_iters: int = field(default=30, metadata=rule(ge=1))  # ... with a longer budget each
     perturb: float = field(default=0.05, metadata=rule(gt=0))  # start noise, fraction of each joint's range
     seed: int = field(default=0, metadata=rule(ge=0))
     # among ok solutions of a hole: the largest clearance, or the nearest to the start (least joint motion)
@@ -65,19 +69,39 @@ class HybridSettings:
 
 @dataclass
 class Candidates:
-    """Refined joints of one or more starts per hole, with what the status rules need."""
+    """Refined joints of one or more starts per hole, with what the status rules need; every field
+    has the candidates along its first dimension (or the first two, hole-major, once grouped)."""
 
     q: torch.Tensor  # (N, n_joints)
     hole_error: torch.Tensor  # (N,) m
     clearances: torch.Tensor  # (N, 4) m, in SAFETY_KINDS order
     iterations: torch.Tensor  # (N,)
+    residual: torch.Tensor  # (N, 6) pose6(q) - target, m
+
+    FIELDS = ("q", "hole_error", "clearances", "iterations", "residual")
+
+    def map(self, f) -> Candidates:
+        return Candidates(*(f(getattr(self, name)) for name in self.FIELDS))
+
+    def take(self, index) -> Candidates:
+        return self.map(lambda t: t[index])
+
+    def put(self, index, other: Candidates) -> None:
+        for name in self.FIELDS:
+            getattr(self, name)[index] = getattr(other, name)
+
+    @staticmethod
+    def per_hole(groups: list[Candidates], holes: int) -> Candidates:
+        """Candidate sets of the same holes (each hole-major, ``holes * k_i``) side by side, flat."""
+        return Candidates(*(torch.cat([getattr(g, name).reshape(holes, -1, *getattr(g, name).shape[1:])
+                                       for g in groups], dim=1).flatten(0, 1) for name in Candidates.FIELDS))
 
 
 class HybridSolver(Solver):
     name = "hybrid"
 
     def __init__(self, boom, safety: SafetyModel, init: Solver | None, settings: HybridSettings = HybridSettings(),
-                 name: str = "hybrid"):
+                 name: str = "hybrid", start_box: tuple[torch.Tensor, torch.Tensor] | None = None):
         super().__init__(boom)
         if safety.boom is not boom:
             raise InputError(f"{name}: the safety model belongs to boom '{safety.boom.name}', not '{boom.name}'")
@@ -85,6 +109,10 @@ class HybridSolver(Solver):
         self.space = JointSpace(boom)
         span = self.space.upper - self.space.lower
         self.wraps = self.space.revolute & (span >= 2 * math.pi - 1e-9)  # full-turn joints
+        # random starts: within the working box (the postures rigs use) where given, else the full ranges
+        lo, hi = start_box if start_box is not None else (self.space.full(self.space.lower[None])[0],
+                                                          self.space.full(self.space.upper[None])[0])
+        self.start_lo, self.start_hi = lo[self.space.free].double(), hi[self.space.free].double()
 
     # ------------------------------------------------------------------ one LM run per start
     def project(self, x: torch.Tensor) -> torch.Tensor:
@@ -92,71 +120,95 @@ class HybridSolver(Solver):
         wrapped = torch.remainder(x - lo, 2 * math.pi) + lo
         return torch.where(self.wraps.to(x.device), wrapped, torch.maximum(torch.minimum(x, hi), lo))
 
-    def _rows(self, x: torch.Tensor, target: torch.Tensor, use_safety: bool):
-        """Stacked residual ``(B, m)``, its Jacobian ``(B, m, n)``, hole error ``(B,)``, clearances ``(B, 4)``.
-
-        Clearance gradients are computed only for the configurations with a clearance row active
-        (below ``margin``): from a network's answer that is a small share, and the rest of the batch
-        pays only for the clearance values."""
-        boom, s = self.boom, self.s
-        frames = boom.frames(self.space.full(x))
-        r = boom.pose6_from_frames(frames) - target
-        J = boom.pose6_jacobian(frames)[..., self.space.free]
-        hole = 0.5 * (r[:, :3].norm(dim=-1) + r[:, 3:].norm(dim=-1))
+    def _clearances(self, frames: torch.Tensor) -> torch.Tensor:
         values = self.safety.clearances_from_frames(frames)
-        c = torch.stack([values[k] for k in SAFETY_KINDS], dim=-1)
-        if use_safety:
-            active = c < s.margin
-            w = s.clearance_weight * active.to(c.dtype)
-            G = torch.zeros(*c.shape, self.space.n, dtype=c.dtype)
-            rows = active.any(dim=-1).nonzero().flatten()
-            if len(rows):
-                _, grads = self.safety.clearances_with_jacobians(frames[rows])
-                G[rows] = torch.stack([grads[k] for k in SAFETY_KINDS], dim=-2)[..., self.space.free]
-            r = torch.cat([r, w * (c - s.margin)], dim=-1)
-            J = torch.cat([J, w.unsqueeze(-1) * G], dim=-2)
-        return r, J, hole, c
+        return torch.stack([values[k] for k in SAFETY_KINDS], dim=-1)
 
-    def refine(self, q0: torch.Tensor, target: torch.Tensor, use_safety: bool) -> Candidates:
+    def _rows(self, x: torch.Tensor, target: torch.Tensor, c_prev: torch.Tensor | None):
+        """Stacked residual ``(B, m)``, its Jacobian ``(B, m, n)``, hole error ``(B,)``, clearances
+        ``(B, 4)`` and whether they were measured at ``x`` (``(B,)``).
+
+        ``c_prev`` None: pose rows only, clearances left unmeasured (NaN). Otherwise the clearances are
+        measured only where the last measurement ``c_prev`` was within ``guard`` of a safety distance:
+        one refinement step moves the boom by millimetres, so a boom far from every surface stays clear
+        and pays for no clearance evaluation; every answer's clearances are measured again at the end.
+        Clearance gradients are computed only where a clearance row is active (below ``margin``)."""
+        s, n = self.s, self.space.n
+        frames = self.boom.frames(self.space.full(x))
+        r = self.boom.pose6_from_frames(frames) - target
+        J = self.boom.pose6_jacobian(frames)[..., self.space.free]
+        hole = 0.5 * (r[:, :3].norm(dim=-1) + r[:, 3:].norm(dim=-1))
+        if c_prev is None:
+            unmeasured = torch.full((len(x), len(SAFETY_KINDS)), math.nan, dtype=r.dtype)
+            return r, J, hole, unmeasured, torch.zeros_like(hole, dtype=torch.bool)
+        fresh = c_prev.min(dim=-1).values < s.guard
+        c = c_prev.clone()
+        near = fresh.nonzero().flatten()
+        if len(near):
+            c[near] = self._clearances(frames[near])
+        active = c < s.margin
+        w = s.clearance_weight * active.to(c.dtype)
+        G = torch.zeros(*c.shape, n, dtype=c.dtype)
+        rows = active.any(dim=-1).nonzero().flatten()
+        if len(rows):
+            _, grads = self.safety.clearances_with_jacobians(frames[rows])
+            G[rows] = torch.stack([grads[k] for k in SAFETY_KINDS], dim=-2)[..., self.space.free]
+        r = torch.cat([r, w * (c - s.margin)], dim=-1)
+        J = torch.cat([J, w.unsqueeze(-1) * G], dim=-2)
+        return r, J, hole, c, fresh
+
+    def refine(self, q0: torch.Tensor, target: torch.Tensor, use_safety: bool,
+               max_iters: int | None = None) -> Candidates:
         """Levenberg-Marquardt from ``q0 (N, n_joints)`` towards ``target (N, 6)``; each start stops
-        on its own once exact (and, with ``use_safety``, clear), so the batch shrinks as it goes."""
+        on its own once exact (and, with ``use_safety``, clear), so the batch shrinks as it goes.
+        The returned clearances are measured at the returned joints, always."""
         s = self.s
-        stop_tol = 1e-3 * s.tol_mm / 1000  # iterate well below the status tolerance: converged, not borderline
+        max_iters = s.max_iters if max_iters is None else max_iters
+        stop_tol = 1e-2 * s.tol_mm / 1000  # iterate well below the status tolerance: converged, not borderline
         N, n = len(q0), self.space.n
         x_out = self.project(q0[:, self.space.free].double())
-        hole_out = torch.empty(N, dtype=torch.float64)
+        r_out = torch.empty(N, 6, dtype=torch.float64)
         c_out = torch.empty(N, len(SAFETY_KINDS), dtype=torch.float64)
+        measured_out = torch.zeros(N, dtype=torch.bool)
         iters = torch.zeros(N, dtype=torch.long)
         idx = torch.arange(N)
         x, tgt = x_out, target.double()
         lam = torch.full((N,), s.damping, dtype=torch.float64)
-        r, J, hole, c = self._rows(x, tgt, use_safety)
+        start = torch.full((N, len(SAFETY_KINDS)), -math.inf, dtype=torch.float64) if use_safety else None
+        r, J, hole, c, fresh = self._rows(x, tgt, start)
         cost = (r * r).sum(-1)
         eye = torch.eye(n, dtype=torch.float64)
-        for _ in range(s.max_iters + 1):
+        for it in range(max_iters + 1):
             done = (hole <= stop_tol) & ((c >= 0).all(-1) if use_safety else True)
-            if done.any() or _ == s.max_iters:
-                fin = done if _ < s.max_iters else torch.ones_like(done)
-                x_out[idx[fin]], hole_out[idx[fin]], c_out[idx[fin]] = x[fin], hole[fin], c[fin]
+            if done.any() or it == max_iters:
+                fin = done if it < max_iters else torch.ones_like(done)
+                x_out[idx[fin]], r_out[idx[fin]] = x[fin], r[fin, :6]
+                c_out[idx[fin]], measured_out[idx[fin]] = c[fin], fresh[fin]
                 keep = ~fin
                 if not keep.any():
                     break
-                idx, x, tgt, lam, r, J, hole, c, cost = (t[keep] for t in (idx, x, tgt, lam, r, J, hole, c, cost))
+                idx, x, tgt, lam, r, J, hole, c, fresh, cost = (
+                    t[keep] for t in (idx, x, tgt, lam, r, J, hole, c, fresh, cost))
             JtJ = J.transpose(1, 2) @ J
             # Marquardt scaling: damping proportional to the diagonal treats metres and radians alike
             A = JtJ + lam[:, None, None] * (torch.diagonal(JtJ, dim1=1, dim2=2).unsqueeze(-1) * eye + 1e-9 * eye)
             step = torch.linalg.solve(A, -(J.transpose(1, 2) @ r.unsqueeze(-1))).squeeze(-1)
             x_new = self.project(x + step)
-            r_new, J_new, hole_new, c_new = self._rows(x_new, tgt, use_safety)
+            r_new, J_new, hole_new, c_new, fresh_new = self._rows(x_new, tgt, c if use_safety else None)
             cost_new = (r_new * r_new).sum(-1)
             better = cost_new < cost
             b1, b2 = better[:, None], better[:, None, None]
             x, r, J = torch.where(b1, x_new, x), torch.where(b1, r_new, r), torch.where(b2, J_new, J)
-            hole, c = torch.where(better, hole_new, hole), torch.where(b1, c_new, c)
+            hole, c, fresh = torch.where(better, hole_new, hole), torch.where(b1, c_new, c), torch.where(
+                better, fresh_new, fresh)
             cost = torch.where(better, cost_new, cost)
             lam = torch.where(better, lam * 0.3, lam * 10.0).clamp(1e-12, 1e8)
             iters[idx] += 1
-        return Candidates(self.space.full(x_out), hole_out, c_out, iters)
+        stale = (~measured_out).nonzero().flatten()
+        if len(stale):  # the answer's own clearances, wherever the loop reused older ones
+            c_out[stale] = self._clearances(self.boom.frames(self.space.full(x_out[stale])))
+        hole_out = 0.5 * (r_out[:, :3].norm(dim=-1) + r_out[:, 3:].norm(dim=-1))
+        return Candidates(self.space.full(x_out), hole_out, c_out, iters, r_out)
 
     # ------------------------------------------------------------------ statuses
     def rank(self, cand: Candidates, reference: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -179,26 +231,47 @@ class HybridSolver(Solver):
 
     def best_of(self, cand: Candidates, holes: int, reference: torch.Tensor) -> tuple[Candidates, torch.Tensor]:
         """The best of ``K`` candidates per hole (laid out hole-major, ``holes * K``); ``reference``
-        ``(holes, n_joints)`` is each hole's start."""
-        status, score = self.rank(cand, reference.repeat_interleave(len(cand.q) // holes, dim=0))
-        k = len(status) // holes
+        ``(holes, n_joints)`` is each hole's start. Iterations add up over a hole's candidates."""
+        k = len(cand.q) // holes
+        status, score = self.rank(cand, reference.repeat_interleave(k, dim=0))
         pick = score.reshape(holes, k).argmin(dim=1) + torch.arange(holes) * k
-        it = cand.iterations.reshape(holes, k).sum(dim=1)
-        return Candidates(cand.q[pick], cand.hole_error[pick], cand.clearances[pick], it), status[pick]
+        best = cand.take(pick)
+        best.iterations = cand.iterations.reshape(holes, k).sum(dim=1)
+        return best, status[pick]
 
-    def starts(self, q_net: torch.Tensor) -> torch.Tensor:
-        """``(holes, K, n_joints)``: perturbations of the network's answers, then random joint vectors."""
+    def starts(self, q_net: torch.Tensor, kind: str) -> torch.Tensor:
+        """``(holes, K, n_joints)`` extra starts: ``perturbed`` network answers, or ``random`` / ``deep``
+        joint vectors (``random_starts`` / ``deep_starts`` of them) within the start box."""
         s, space = self.s, self.space
-        g = torch.Generator().manual_seed(s.seed)
+        g = torch.Generator().manual_seed(s.seed + ("perturbed", "random", "deep").index(kind))
         H = len(q_net)
-        x0 = q_net[:, space.free]
-        noise = torch.randn(H, s.perturbed_starts, space.n, generator=g, dtype=torch.float64)
-        perturbed = x0.unsqueeze(1) + s.perturb * (space.upper - space.lower) * noise
-        rand = space.uniform((H, s.random_starts), g)
-        return space.full(self.project(torch.cat([perturbed, rand], dim=1)))
+        if kind == "perturbed":
+            noise = torch.randn(H, s.perturbed_starts, space.n, generator=g, dtype=torch.float64)
+            x = q_net[:, space.free].unsqueeze(1) + s.perturb * (space.upper - space.lower) * noise
+        else:
+            k = s.random_starts if kind == "random" else s.deep_starts
+            u = torch.rand(H, k, space.n, generator=g, dtype=torch.float64)
+            x = self.start_lo + u * (self.start_hi - self.start_lo)
+        return space.full(self.project(x))
+
+    def _try(self, best: Candidates, status: torch.Tensor, todo: torch.Tensor, starts: torch.Tensor,
+             pose: torch.Tensor, reference: torch.Tensor, use_safety: bool, max_iters: int | None = None) -> None:
+        """Refine ``starts (len(todo), K, n)`` of the holes ``todo`` in one batch; each hole keeps the
+        best of its current answer and the new candidates (in place)."""
+        H, K, n = starts.shape
+        if H == 0 or K == 0:
+            return
+        new = self.refine(starts.reshape(H * K, n), pose[todo].repeat_interleave(K, dim=0), use_safety, max_iters)
+        chosen, chosen_status = self.best_of(Candidates.per_hole([best.take(todo), new], H), H, reference[todo])
+        best.put(todo, chosen)
+        status[todo] = chosen_status
 
     # ------------------------------------------------------------------ the solve
     def solve(self, targets: Targets) -> SolveResult:
+        """First the network's answers; for the holes not ok: perturbed starts; for those still not ok:
+        random starts, then many random starts with a longer budget, and finally the network's answer
+        and random starts without the safety rows (can the pose be reached at all?). Each stage sees
+        only the holes the previous ones left, so the batch pays for the hard holes alone."""
         if not isinstance(targets, HoleTargets):
             raise InputError(f"{self.name}: solves holes (HoleTargets), got {type(targets).__name__}")
         if len(targets) == 0:
@@ -206,46 +279,25 @@ class HybridSolver(Solver):
         start = time.perf_counter()
         with torch.no_grad():
             pose = targets.pose.double()
-            q_net = (self.init.solve(targets).q if self.init is not None
-                     else (0.5 * (self.space.lower + self.space.upper)).expand(len(pose), -1))
-            best = self.refine(self.space.full(q_net[:, self.space.free].double()), pose, use_safety=True)
+            q_net = (self.init.joints(targets) if self.init is not None
+                     else self.space.full((0.5 * (self.space.lower + self.space.upper)).expand(len(pose), -1)))
+            best = self.refine(q_net, pose, use_safety=True)
             status, _ = self.rank(best)
             todo = (status != 0).nonzero().flatten()
-            if len(todo) and self.s.perturbed_starts + self.s.random_starts > 0:
-                best, status = self._more_starts(best, status, todo, q_net.double(), pose)
+            self._try(best, status, todo, self.starts(q_net[todo], "perturbed"), pose, q_net, use_safety=True)
+            todo = (status != 0).nonzero().flatten()
+            if len(todo):
+                self._try(best, status, todo, self.starts(q_net[todo], "random"), pose, q_net, use_safety=True)
+                todo = (status != 0).nonzero().flatten()
+                self._try(best, status, todo, self.starts(q_net[todo], "deep"), pose, q_net, use_safety=True,
+                          max_iters=self.s.deep_iters)
+                todo = (status != 0).nonzero().flatten()
+                free_starts = torch.cat([q_net[todo].unsqueeze(1), self.starts(q_net[todo], "random")], dim=1)
+                self._try(best, status, todo, free_starts, pose, q_net, use_safety=False)
         wall = time.perf_counter() - start
-        errors = targets.errors(tool_transform(self.boom, best.q))
+        err = pose_errors(pose + best.residual, pose)
+        errors = {"position": err["start"], "orientation": err["direction"], "preview": err["preview"],
+                  "hole": err["hole"]}
         clearances = {k: best.clearances[:, i] for i, k in enumerate(SAFETY_KINDS)}
         return SolveResult(best.q, errors, best.iterations, wall,
                            status=[STATUSES[i] for i in status.tolist()], clearances=clearances)
-
-    def _more_starts(self, best: Candidates, status: torch.Tensor, todo: torch.Tensor, q_net: torch.Tensor,
-                     pose: torch.Tensor) -> tuple[Candidates, torch.Tensor]:
-        """Every extra start of the holes ``todo``, with and without the safety rows, in one batch
-        each; the best candidate per hole (the first pass's included) replaces the first pass's."""
-        starts = self.starts(q_net[todo])
-        H, K, n = starts.shape
-        flat, tgt = starts.reshape(H * K, n), pose[todo].repeat_interleave(K, dim=0)
-        safe = self.refine(flat, tgt, use_safety=True)
-        free = self.refine(torch.cat([q_net[todo], flat]), torch.cat([pose[todo], tgt]), use_safety=False)
-        free_first = Candidates(free.q[:H], free.hole_error[:H], free.clearances[:H], free.iterations[:H])
-        free_rest = Candidates(free.q[H:], free.hole_error[H:], free.clearances[H:], free.iterations[H:])
-        per_hole = [Candidates(best.q[todo], best.hole_error[todo], best.clearances[todo], best.iterations[todo]),
-                    free_first]
-        per_hole_k = [safe, free_rest]
-        groups = [_reshape(c, H, 1) for c in per_hole] + [_reshape(c, H, K) for c in per_hole_k]
-        merged = Candidates(*(torch.cat([getattr(g, f) for g in groups], dim=1).flatten(0, 1)
-                              for f in ("q", "hole_error", "clearances", "iterations")))
-        chosen, chosen_status = self.best_of(merged, H, q_net[todo])
-        out = Candidates(best.q.clone(), best.hole_error.clone(), best.clearances.clone(), best.iterations.clone())
-        out.q[todo], out.hole_error[todo], out.clearances[todo], out.iterations[todo] = (
-            chosen.q, chosen.hole_error, chosen.clearances, chosen.iterations)
-        status = status.clone()
-        status[todo] = chosen_status
-        return out, status
-
-
-def _reshape(c: Candidates, holes: int, k: int) -> Candidates:
-    """Hole-major ``(holes, k, ...)`` views of a flat candidate set."""
-    return Candidates(c.q.reshape(holes, k, -1), c.hole_error.reshape(holes, k),
-                      c.clearances.reshape(holes, k, -1), c.iterations.reshape(holes, k))

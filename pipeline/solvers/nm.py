@@ -121,7 +121,7 @@ class NMSolver(Solver):
     def _solve(self, targets: Targets) -> tuple[torch.Tensor, torch.Tensor]:
         B = len(targets)
         if self.init is not None:
-            x0 = self.space.clamp(self.init.solve(targets).q[:, self.space.free])
+            x0 = self.space.clamp(self.init.joints(targets)[:, self.space.free])
         else:  # start mid-range, a fixed home pose
             x0 = (0.5 * (self.space.lower + self.space.upper)).expand(B, -1).clone()
         x, cost, iters = self._descend(x0, targets)
