@@ -226,7 +226,8 @@ def test_build_solver_names_bad_entries(jumbo8, tmp_path):
 
 
 TINY = ["train.steps=30", "model.width=32", "train.log_model=false",
-        "benchmark.holes=12", "benchmark.single=2", "benchmark.methods=[cuikm,nm,cuikm_nm,rbf,ceopso,ga]",
+        "benchmark.holes=12", "benchmark.single=2", "benchmark.methods=[cuikm,hybrid,nm,cuikm_nm,rbf,ceopso,ga]",
+        "benchmark.solvers.ga.max_holes=6", "benchmark.solvers.hybrid.deep_starts=16",
         "benchmark.solvers.rbf.samples=300", "benchmark.solvers.rbf.train=250",
         "benchmark.solvers.ceopso.population=60", "benchmark.solvers.ceopso.iterations=20",
         "benchmark.solvers.ga.generations=10"]
@@ -250,11 +251,15 @@ def test_benchmark_writes_one_row_per_method_and_logs_it(bench):
     tmp, df = bench
     out = tmp / "data" / "benchmark"
     on_disk = pd.read_csv(out / "results.csv")
-    assert on_disk["method"].tolist() == ["cuikm", "nm", "cuikm_nm", "rbf", "ceopso", "ga"]
+    assert on_disk["method"].tolist() == ["cuikm", "hybrid", "nm", "cuikm_nm", "rbf", "ceopso", "ga"]
     assert set(benchmark.COLUMNS) == set(on_disk.columns)
-    assert (on_disk["holes"] == 12).all() and on_disk[["hole_mm_mean", "batch_ms_per_hole"]].notna().all().all()
+    holes = on_disk.set_index("method")["holes"]
+    assert (holes.drop("ga") == 24).all() and holes["ga"] == 6  # 12 holes of groups 1 and 2; ga capped at 6
+    assert on_disk[["hole_mm_mean", "batch_ms_per_hole"]].notna().all().all()
     nm = on_disk.set_index("method").loc["nm"]
     assert nm["solved_1mm_share"] >= 0.9  # the numerical method is the accuracy reference
+    hybrid = on_disk.set_index("method").loc["hybrid"]
+    assert hybrid["ok_share"] >= 0.9 and hybrid["ok_share"] >= nm["ok_share"]  # exact and clear, from a weak network
     assert (out / "results.md").read_text().count("\n|") >= 7 and (out / "figures" / "error_vs_time.png").exists()
     client = MlflowClient(f"sqlite:///{tmp}/mlflow.db")
     exp = client.get_experiment_by_name("boom-ik-quick")
