@@ -20,7 +20,7 @@ from pipeline.core.config import CONF_DIR
 from pipeline.core.device import configure_process
 from pipeline.core.io import write_text
 from pipeline.core.settings import parse, rule
-from pipeline.data.working_box import derive_working_box
+from pipeline.learning.supervised_set import derive_working_box
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +39,7 @@ def run(cfg: DictConfig) -> dict:
     header = (
         "# @package holes.sup\n"
         "# Omega_sup's working box (spec section 3): per joint [lower, upper], deg for revolute joints, m for\n"
-        "# prismatic ones. Derived by `python -m pipeline.derive_box` (pipeline/data/working_box.py): the\n"
+        "# prismatic ones. Derived by `python -m pipeline.derive_box` (pipeline/learning/supervised_set.py): the\n"
         f"# percentiles {stats['percentiles']} of the exact, clear solutions that a local search from the home pose\n"
         f"# finds for {stats['holes']} holes drawn like Omega_unsup with seed {stats['seed']} ({stats['ok']} of them "
         "solved so).\n# Full mechanical ranges instead: sup_box=full.\n"

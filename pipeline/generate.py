@@ -21,13 +21,14 @@ from omegaconf import DictConfig
 from pipeline.core.build import build_safety, hole_sampling
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.io import save_figure
-from pipeline.core.settings import parse, rule
+from pipeline.core.settings import check_rule, coerce, parse, rule
 from pipeline.data.hole_sets import build_hole_sets, write_hole_sets
 from pipeline.data.holes import joint_box
 from pipeline.data.iredes import write_iredes_plan
 from pipeline.data.plans import demo_face, write_csv_plan
 from pipeline.data.tables import POSE_COLUMNS
 from pipeline.evaluation.plots import collar_clouds
+from pipeline.learning.supervised_set import home_branch_labels
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
@@ -59,8 +60,12 @@ def run(cfg: DictConfig) -> dict:
     data = project_path(cfg.paths.data)
     with stage_run(tracking, "generate", {"stage": "generate"}) as mlrun:
         mlrun.log_params({k: as_dict(cfg[k]) for k in ("holes", "safety", "tunnel")})
+        labels = coerce(cfg.holes.sup.get("labels", "sampled"), "str", "holes.sup.labels")
+        check_rule(labels, "holes.sup.labels", choices=("sampled", "home_branch"))
+        relabel = (lambda q: home_branch_labels(safety, q)) if labels == "home_branch" else None
         tables, meta = build_hole_sets(safety, hole_sampling(cfg.holes), unsup.size, unsup.seed, sup.size, sup.seed,
-                                       test.size, list(test.seeds), box)
+                                       test.size, list(test.seeds), box, relabel,
+                                       coerce(cfg.holes.sup.get("window", False), "bool", "holes.sup.window"))
         meta["config"] = {k: as_dict(cfg[k]) for k in ("boom", "tunnel", "safety", "holes")}
         fig = collar_clouds({"Omega_sup": tables["sup.parquet"][POSE_COLUMNS].to_numpy(),
                              "Omega_unsup": tables["train.parquet"][POSE_COLUMNS].to_numpy()}, safety.tunnel,

@@ -71,7 +71,7 @@ def run(cfg: DictConfig) -> dict:
         history = fit(model, safety.boom, train_safety, method.objective,
                       training_batches(data, method.objective, settings, safety, sampling, device),
                       settings.steps, settings.lr, data.val_pose.float().to(device), settings.eval_every,
-                      settings.grad_clip, progress=settings.progress,
+                      settings.grad_clip, progress=settings.progress, keep_best=settings.keep_best,
                       on_eval=lambda step, rec, elapsed: log_training_progress(
                           mlrun, step, settings.steps, rec, elapsed, method.name, echo=not settings.progress))
         model = model.cpu()

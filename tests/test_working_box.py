@@ -11,7 +11,7 @@ from pipeline.core.errors import ConfigError, InputError
 from pipeline.data.hole_sets import read_hole_table
 from pipeline.data.holes import HoleSampling, in_face_window, joint_box, sample_joints
 from pipeline.data.tables import POSE_COLUMNS
-from pipeline.data.working_box import derive_working_box
+from pipeline.learning.supervised_set import derive_working_box
 
 
 @pytest.fixture(scope="module")

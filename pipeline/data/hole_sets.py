@@ -11,7 +11,7 @@ import json
 import os
 import shutil
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import pandas as pd
@@ -36,9 +36,12 @@ def build_hole_sets(
     test_size: int,
     test_seeds: list[int],
     sup_box: Mapping | None = None,
+    relabel: Callable[[torch.Tensor], tuple[torch.Tensor, float]] | None = None,
+    sup_window: bool = False,
 ) -> tuple[dict[str, pd.DataFrame], dict]:
     """All hole tables by file name, and the statistics that go into ``meta.json``. Omega_sup's
-    joints are uniform in ``sup_box`` (the working box; None: the full mechanical ranges)."""
+    joints are uniform in ``sup_box`` (the working box; None: the full mechanical ranges); its
+    labels are the sampled joints, or ``relabel(q) -> (labels, share relabelled)`` of them."""
     seeds = [unsup_seed, sup_seed, *test_seeds]
     if len(set(seeds)) != len(seeds):
         raise ConfigError(f"holes: seeds must all differ (unsup, sup, test...), got {seeds}")
@@ -51,7 +54,13 @@ def build_hole_sets(
         tables[f"test_group_{k}.parquet"] = holes_frame(poses)
         test_stats.append(stats)
     boom = safety.boom
-    q = sample_joints(sup_size, boom, sup_seed, sup_box)
+    if sup_window:  # the mismatch study's middle row: keep only samples whose pose is face-like
+        q = sample_joints_in_window(sup_size, safety, sup_seed, sup_box)
+    else:
+        q = sample_joints(sup_size, boom, sup_seed, sup_box)
+    relabelled = None
+    if relabel is not None:  # same poses, other (branch-consistent) joints
+        q, relabelled = relabel(q)
     frames = boom.frames(q)
     sup_pose = boom.pose6_from_frames(frames)
     sup = pd.concat([joints_frame(q, boom.joint_names), holes_frame(sup_pose)], axis=1)
@@ -65,12 +74,27 @@ def build_hole_sets(
         "test_rejection": test_stats,
         "sup_face_window_share": float(in_face_window(sup_pose, safety.tunnel).double().mean()),
         "sup_box": None if sup_box is None else {k: list(v) for k, v in sup_box.items()},
+        "sup_relabelled_share": relabelled,
         "sup_violation_share": {
             **{k: float(violated[k].double().mean()) for k in SAFETY_KINDS},
             "any": float(any_violation.double().mean()),
         },
     }
     return tables, meta
+
+
+def sample_joints_in_window(n: int, safety: SafetyModel, seed: int, box: Mapping | None) -> torch.Tensor:
+    """``n`` joint vectors from ``box`` whose poses lie in the face window (rejection, in batches)."""
+    gen_seed, kept, have = seed, [], 0
+    for _ in range(1000):
+        q = sample_joints(max(4 * (n - have), 1024), safety.boom, gen_seed, box)
+        q = q[in_face_window(safety.boom.pose6(q), safety.tunnel)]
+        kept.append(q)
+        have += len(q)
+        gen_seed += 1_000_003  # the next batch: another stream, deterministic
+        if have >= n:
+            return torch.cat(kept)[:n]
+    raise ConfigError(f"holes.sup.window: fewer than {n} face-like samples in 1000 batches; widen the box")
 
 
 def write_hole_sets(tables: dict[str, pd.DataFrame], meta: dict, out_dir: Path) -> list[Path]:

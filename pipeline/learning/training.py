@@ -47,6 +47,7 @@ class TrainSettings:
     threads: int | None = field(default=None, metadata=rule(ge=1))
     log_model: bool = True
     method_key: str = "method"
+    keep_best: bool = True  # end with the weights of the best held-out evaluation, not the last step's
 
     @classmethod
     def from_config(cls, node: Mapping) -> TrainSettings:
@@ -189,17 +190,21 @@ def fit(
     grad_clip: float | None = None,
     on_eval: Callable[[int, dict[str, float], float], None] | None = None,
     progress: bool = True,
+    keep_best: bool = False,
 ) -> list[dict[str, float]]:
     """Adam with the linearly annealed learning rate of eq. 8; returns the logged history.
 
     ``on_eval(step, record, elapsed_s)`` runs at every held-out evaluation (live MLflow curves). A
-    non-finite loss stops training at once with the step named: a NaN model must never be saved."""
+    non-finite loss stops training at once with the step named: a NaN model must never be saved.
+    ``keep_best``: the model ends with the weights of its best held-out hole-seeking error (early
+    stopping on held-out holes, never on the test groups); the history marks that step."""
     opt = torch.optim.Adam(model.parameters(), lr=lr)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda t: max(0.0, 1.0 - t / steps))
     history: list[dict[str, float]] = []
     bar = tqdm(range(steps), desc=f"train {'sup' if objective.supervised else 'unsup'}", disable=not progress)
     model.train()
     t0 = time.perf_counter()
+    best_mm, best_state, best_step = math.inf, None, None
     for step in bar:
         raise_if_terminated()  # SIGTERM stops training at a step boundary even if its exception was swallowed
         pose, q = next(batches)
@@ -220,9 +225,16 @@ def fit(
             model.train()
             elapsed = time.perf_counter() - t0
             history.append({"step": step, "elapsed_s": elapsed, **record})
+            if keep_best and record["val_hole_mm"] < best_mm:
+                best_mm, best_step = record["val_hole_mm"], step
+                best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
             bar.set_postfix(loss=f"{record['loss']:.3g}", hole_mm=f"{record['val_hole_mm']:.2f}")
             if on_eval is not None:
                 on_eval(step, record, elapsed)
+    if best_state is not None:
+        model.load_state_dict(best_state)
+        for rec in history:
+            rec["kept"] = float(rec["step"] == best_step)
     model.eval()
     return history
 
@@ -236,8 +248,10 @@ def final_metrics(model: IKNet, val_pose: torch.Tensor, safety: SafetyModel, his
                   train_seconds: float) -> dict[str, float]:
     """Held-out errors and safety of the trained network; refuses a non-finite result."""
     val = summarize(solution_table(val_pose.cpu(), model(val_pose.cpu()), safety))
+    kept = next((rec for rec in history if rec.get("kept")), history[-1])  # the weights the model ends with
     final = {
-        **{k: v for k, v in history[-1].items() if k.startswith("val_")},
+        **{k: v for k, v in kept.items() if k.startswith("val_")},
+        "kept_step": kept["step"],
         "val_hole_mm_p95": val["hole_mm_p95"],
         "val_collision_rate": val["collision_rate_paper"],
         "val_any_violation_share": val["any_violation_share"],

@@ -249,12 +249,14 @@ class StageRun:
 
     def log_network(self, model, input_example, registered_name: str | None = None) -> None:
         """The trained network as an MLflow model (MLflow 3 needs an input example), optionally
-        registered in the Model Registry under ``registered_name``."""
+        registered in the Model Registry under ``registered_name``. Pickled, not MLflow 3's default
+        ``torch.export`` program: ``solve`` loads it back as the :class:`IKNet` it is (limits and
+        normalisation included); deployable exports are the ``export`` stage's job."""
         if self.active:
             import mlflow.pytorch
 
             mlflow.pytorch.log_model(model, name="model", input_example=input_example, pip_requirements=["torch"],
-                                     registered_model_name=registered_name)
+                                     registered_model_name=registered_name, serialization_format="pickle")
 
     def log_dataset(self, df, path: str | Path, context: str, digest: str | None = None) -> None:
         """A table the run read, as an MLflow dataset input whose digest is the file's MD5, the hash

@@ -1,4 +1,5 @@
-"""Omega_sup's working box: the range of each joint that face holes actually use (spec section 3).
+"""How Omega_sup is drawn and labelled: the working box (the range of each joint that face holes
+actually use, spec section 3), and optionally branch-consistent labels.
 
 Paper 000 labels its supervised set from "each joint's range of activity". A rig would take those
 ranges from its logged joints; here they come from exact, collision-free solutions of holes drawn
@@ -54,3 +55,20 @@ def derive_working_box(safety: SafetyModel, sampling: HoleSampling, n: int, seed
     stats = {"holes": n, "seed": seed, "ok": int(ok.sum()), "ok_share": float(ok.double().mean()),
              "percentiles": [lo_pct, hi_pct], "solve_s": result.wall_s}
     return box, stats
+
+
+def home_branch_labels(safety: SafetyModel, q: torch.Tensor, settings: HybridSettings = LOCAL_SEARCH) -> tuple:
+    """Relabel sampled joints ``q (n, n_joints)`` with the solution of their own pose that a local
+    search from the home pose reaches (pose only, no safety rows), where it reaches it exactly.
+
+    An 8-joint boom reaches a hole pose along a 3-parameter family of joints, so a regression on
+    sampled joints averages incompatible branches; the home-branch label picks one branch per
+    pose, continuously (the same search from the same start). Returns the labels and the share
+    of samples relabelled (the rest keep their sampled joints)."""
+    boom = safety.boom
+    solver = HybridSolver(boom, safety, None, settings)
+    pose = boom.pose6(q)
+    home = solver.space.full((0.5 * (solver.space.lower + solver.space.upper)).expand(len(q), -1))
+    found = solver.refine(home, pose, use_safety=False)
+    exact = found.hole_error <= settings.tol_mm / 1000
+    return torch.where(exact[:, None], found.q, q), float(exact.double().mean())
