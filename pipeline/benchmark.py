@@ -18,6 +18,7 @@ import math
 import platform
 import statistics
 import time
+from collections import Counter
 from dataclasses import dataclass, field
 
 import hydra
@@ -36,7 +37,8 @@ from pipeline.data.holes import joint_box
 from pipeline.evaluation.markdown import markdown_table
 from pipeline.evaluation.metrics import solution_table, summarize
 from pipeline.evaluation.plots import error_vs_time
-from pipeline.solvers import HoleTargets, Solver, build_solver
+from pipeline.evaluation.status_reference import status_agreement
+from pipeline.solvers import HoleTargets, Solver, SolveResult, build_solver
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
@@ -56,6 +58,7 @@ class BenchmarkSettings:
     single: int = field(default=5, metadata=rule(ge=0))
     threads: int = field(default=2, metadata=rule(ge=1))
     methods: list[str] = field(default_factory=list)
+    reference_ok_sample: int = field(default=200, metadata=rule(ge=0))  # hybrid statuses vs a slow search
 
 
 def load_holes(holes_dir, groups: list[int], n: int) -> torch.Tensor:
@@ -69,7 +72,7 @@ def load_holes(holes_dir, groups: list[int], n: int) -> torch.Tensor:
     return torch.cat(poses)
 
 
-def measure(solver: Solver, pose: torch.Tensor, depth: float, safety, single: int) -> tuple[dict, torch.Tensor]:
+def measure(solver: Solver, pose: torch.Tensor, depth: float, safety, single: int) -> tuple[dict, SolveResult]:
     """A batched solve of every hole (repeated up to 1 s for fast solvers, median time), then
     ``single`` holes one at a time (median latency)."""
     targets = HoleTargets(pose, depth)
@@ -90,7 +93,7 @@ def measure(solver: Solver, pose: torch.Tensor, depth: float, safety, single: in
         "batch_ms_per_hole": 1000 * batch / len(targets), "holes_per_s": len(targets) / batch,
         "single_ms_per_hole": 1000 * statistics.median(latencies) if latencies else float("nan"),
         "iterations_mean": float(result.iterations.double().mean()),
-    }, result.q
+    }, result
 
 
 def markdown(df: pd.DataFrame) -> str:
@@ -142,33 +145,50 @@ def run(cfg: DictConfig) -> pd.DataFrame:
                "holes_per_group": settings.holes}
     with stage_run(tracking, "benchmark", {"stage": "benchmark"}) as mlrun:
         mlrun.log_params({"benchmark": OmegaConf.to_container(cfg.benchmark, resolve=True), "machine": machine})
-        rows = []
+        rows, references = [], {}
         for m, (solver, setup_s, cap) in solvers.items():
-            row, _ = measure(solver, pose[:cap], safety.boom.preview_depth, safety, settings.single)
+            row, result = measure(solver, pose[:cap], safety.boom.preview_depth, safety, settings.single)
             rows.append({"method": m, **row, "setup_s": setup_s})
             mlrun.log_metrics(row, prefix=f"{m}.")
+            if result.status is not None and settings.reference_ok_sample:
+                references[m] = {"statuses": dict(Counter(result.status)), **status_agreement(
+                    solver, pose[:cap], result.status, settings.reference_ok_sample)}
+                mlrun.log_metrics({k: v for k, v in references[m].items() if isinstance(v, (int, float))},
+                                  prefix=f"{m}.reference.")
             log.info("%-10s %d holes: mean %.4g mm, p95 %.4g mm, ok %.2f %%, collisions %.2f %%, %.4g ms/hole "
                      "batched, %.3g ms single", m, row["holes"], row["hole_mm_mean"], row["hole_mm_p95"],
                      100 * row["ok_share"], 100 * row["collision_rate_paper"], row["batch_ms_per_hole"],
                      row["single_ms_per_hole"])
         df = pd.DataFrame(rows, columns=COLUMNS)
-        write_results(df, machine, out)
+        write_results(df, machine, out, references)
         mlrun.log_table(df, "tables/benchmark.json")
         mlrun.log_figure(error_vs_time(df), "figures/error_vs_time.png")
         mlrun.log_artifact(out / "results.csv")
     return df
 
 
-def write_results(df: pd.DataFrame, machine: dict, out) -> None:
+def write_results(df: pd.DataFrame, machine: dict, out, references: dict) -> None:
     write_csv(df, out / "results.csv")
     # keyed by method so `dvc metrics show` / `dvc exp show` list one column per method and figure
     finite = lambda v: v if not isinstance(v, float) or math.isfinite(v) else None  # noqa: E731  NaN: not measured
-    write_json({"machine": machine, **{r["method"]: {k: finite(v) for k, v in r.items() if k != "method"}
-                                        for r in df.to_dict("records")}}, out / "results.json")
+    write_json({"machine": machine, "status_reference": references,
+                **{r["method"]: {k: finite(v) for k, v in r.items() if k != "method"} for r in df.to_dict("records")}},
+               out / "results.json")
     write_text(f"Test groups {machine['groups']}, first {machine['holes_per_group']} holes of each (a method's "
                f"`holes` column says how many it solved); {machine['processor']}, {machine['threads']} torch threads, "
-               f"torch {machine['torch']}.\n\n" + markdown(df), out / "results.md")
+               f"torch {machine['torch']}.\n\n" + markdown(df) + reference_markdown(references), out / "results.md")
     save_figure(error_vs_time(df), out / "figures" / "error_vs_time.png")
+
+
+def reference_markdown(references: dict) -> str:
+    lines = []
+    for m, r in references.items():
+        lines += ["", f"{m}: statuses {r['statuses']}. Reference search (pipeline/evaluation/status_reference.py) on "
+                  f"{r['holes_checked']} holes (every hole not ok, {r['ok_sampled']} ok ones sampled): agreement "
+                  f"{100 * r['agreement']:.1f} %, {r['fast_not_ok_that_reference_solves']} not-ok holes the reference "
+                  f"solves, {r['no_clear_solution_found_by_reference']} with no clear solution found; pairs "
+                  f"(fast->reference) {r['pairs']}.", ""]
+    return "\n".join(lines)
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")

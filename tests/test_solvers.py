@@ -1,5 +1,6 @@
 """Baseline solvers: each reaches easy targets, the papers' claimed mechanisms, bad input."""
 
+import json
 import math
 
 import pandas as pd
@@ -260,6 +261,9 @@ def test_benchmark_writes_one_row_per_method_and_logs_it(bench):
     assert nm["solved_1mm_share"] >= 0.9  # the numerical method is the accuracy reference
     hybrid = on_disk.set_index("method").loc["hybrid"]
     assert hybrid["ok_share"] >= 0.9 and hybrid["ok_share"] >= nm["ok_share"]  # exact and clear, from a weak network
+    reference = json.loads((out / "results.json").read_text())["status_reference"]["hybrid"]
+    assert reference["holes_checked"] >= 5 and 0 <= reference["agreement"] <= 1
+    assert sum(reference["pairs"].values()) == reference["holes_checked"]
     assert (out / "results.md").read_text().count("\n|") >= 7 and (out / "figures" / "error_vs_time.png").exists()
     client = MlflowClient(f"sqlite:///{tmp}/mlflow.db")
     exp = client.get_experiment_by_name("boom-ik-quick")
