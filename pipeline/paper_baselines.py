@@ -14,10 +14,12 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from pipeline.core.build import load_boom
-from pipeline.core.config import project_path
+from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import configure_process
 from pipeline.core.io import write_csv, write_text
 from pipeline.data.hole_sets import read_hole_poses
+from pipeline.data.holes import joint_box
+from pipeline.data.plans import hole_poses, read_csv_plan
 from pipeline.evaluation.markdown import markdown_table
 from pipeline.evaluation.paper_experiments import ga_experiments, paper_metrics, pso_experiments, rbf_experiment
 from pipeline.tracking.runs import TrackingSettings, stage_run
@@ -31,12 +33,16 @@ def run(cfg: DictConfig) -> dict:
     holes = {k: read_hole_poses(data / "holes", f"test_group_{k}.parquet") for k in papers.rbf.groups}
     poses = torch.cat([pose for _, pose in holes.values()]).double()
     boom = load_boom(cfg.boom)
+    face = blast_holes(read_csv_plan(data / "plans" / "demo_face.csv"), boom.preview_depth)
+    box = cfg.holes.sup.get("box")
+    box = joint_box(boom, None if box is None else as_dict(box))
+    rbf_specs = {m: OmegaConf.to_container(cfg.benchmark.solvers[m], resolve=True) for m in papers.rbf.methods}
     with stage_run(tracking, "paper_baselines", {"stage": "paper_baselines"}) as mlrun:
         mlrun.log_params({"papers": OmegaConf.to_container(papers, resolve=True)})
         tables = {}
         tables["pso"], tables["pso_population"] = pso_experiments(papers.pso)
         tables["ga"] = ga_experiments(papers.ga)
-        tables["rbf"] = rbf_experiment(OmegaConf.to_container(cfg.benchmark.solvers.rbf, resolve=True), boom, poses)
+        tables["rbf"] = rbf_experiment(rbf_specs, boom, poses, face, box)
         for name, df in tables.items():
             write_csv(df, out / f"{name}.csv")
             mlrun.log_table(df, f"tables/{name}.json")
@@ -44,6 +50,13 @@ def run(cfg: DictConfig) -> dict:
         mlrun.log_metrics(paper_metrics(tables))
         mlrun.log_artifact(out / "papers.md")
     return tables
+
+
+def blast_holes(plan, depth: float) -> torch.Tensor:
+    """Paper 001 verifies on a 63-hole face: the demo face's holes less its relief holes (large,
+    uncharged, reamed with another bit), 63 with the default layout."""
+    keep = plan.holes["hole_type"] != "relief"
+    return hole_poses(plan.holes[keep], depth)
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")

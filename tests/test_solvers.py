@@ -299,7 +299,8 @@ def test_paper_baselines_small_budgets(bench, tiny):
     client = MlflowClient(f"sqlite:///{tmp}/mlflow.db")
     exp = client.get_experiment_by_name("boom-ik-quick")
     (run,) = client.search_runs([exp.experiment_id], "tags.stage = 'paper_baselines'")
-    assert {"ga_decomposition.pose1.position_error_mm", "rbf.hole_mm_mean"} <= set(run.data.metrics)
+    assert {"ga_decomposition.pose1.position_error_mm", "rbf.test_hole_mm_mean", "rbf_tuned.face_collar_x_mean_mm",
+            "nm.face_collar_y_mean_mm"} <= set(run.data.metrics)
 
 
 def test_rbf_matches_scipys_gaussian_interpolator():

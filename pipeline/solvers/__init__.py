@@ -58,8 +58,9 @@ def build_solver(name: str, spec: Mapping, boom: Boom, models_dir: Path, specs: 
         if kind == "nm":
             spec["init"] = _init_solver(name, spec.pop("init", None), boom, models_dir, specs, safety)
             return NMSolver(boom, name=name, **spec)
-        if kind == "rbf":
-            return RBFSolver(boom, name=name, **spec)
+        if kind == "rbf":  # samples from the working box unless the entry says in_box: false
+            box = start_box if spec.pop("in_box", True) else None
+            return RBFSolver(boom, name=name, box=box, **spec)
         if kind == "pso":
             variant = spec.pop("variant", name)
             locks = spec.pop("locks", None)
