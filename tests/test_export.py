@@ -1,0 +1,160 @@
+"""Deployment export: each exported file computes the joints eager torch computes, for 1 hole and 1 000."""
+
+import hashlib
+import json
+import logging
+
+import pandas as pd
+import pytest
+import torch
+from mlflow.tracking import MlflowClient
+
+from pipeline import export, export_benchmark
+from pipeline.core.build import load_boom
+from pipeline.core.config import compose, load_group_file
+from pipeline.core.errors import ConfigError, InputError
+from pipeline.data.holes import HoleSampling, sample_holes
+from pipeline.learning.models import build_model, save_checkpoint
+
+TORCH_FORMATS = ["torch_export", "torchscript"]
+
+
+def cfg_for(tmp, *extra):
+    return compose([f"paths.data={tmp}/data", "tracking.enabled=false", *extra])
+
+
+@pytest.fixture(scope="module")
+def holes(safety):
+    """Holes drawn like the test groups, with a seed the export's own check does not use."""
+    return sample_holes(1000, safety, HoleSampling(), 4242)[0].float()
+
+
+def save_tiny_network(data, holes, method="cuikm"):
+    """A small network with random weights: equality of the exports needs no training."""
+    torch.manual_seed(0)
+    boom_cfg = load_group_file("boom", "jumbo8")
+    model = build_model(load_boom(boom_cfg), holes.mean(0), holes.std(0), 32, 2, "gelu")
+    save_checkpoint(data / "models" / f"{method}.pt", model, boom_cfg, {"method": method})
+    return model.eval().requires_grad_(False)
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory, holes):
+    tmp = tmp_path_factory.mktemp("export")
+    model = save_tiny_network(tmp / "data", holes)
+    manifests = export.run(cfg_for(tmp))
+    return tmp / "data" / "export", model, manifests["cuikm"]
+
+
+def assert_same_joints(run, model, pose):
+    with torch.inference_mode():
+        got, want = run(pose), model(pose)
+    assert got.shape == (len(pose), 8) and got.dtype == torch.float32
+    torch.testing.assert_close(got, want, atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize("batch", [1, 1000])
+@pytest.mark.parametrize("fmt", TORCH_FORMATS)
+def test_torch_exports_give_the_joints_of_eager_torch(exported, holes, fmt, batch):
+    out, model, _ = exported
+    assert_same_joints(export.load_runner(fmt, out / f"cuikm{export.FORMATS[fmt]}"), model, holes[:batch])
+
+
+@pytest.mark.parametrize("batch", [1, 1000])
+def test_onnx_gives_the_joints_of_eager_torch(exported, holes, batch):
+    pytest.importorskip("onnxruntime")
+    out, model, _ = exported
+    assert_same_joints(export.load_runner("onnx", out / "cuikm.onnx"), model, holes[:batch])
+
+
+def test_onnx_file_is_named_and_described(exported):
+    onnx = pytest.importorskip("onnx")
+    out, _, manifest = exported
+    proto = onnx.load(out / "cuikm.onnx")
+    assert [i.name for i in proto.graph.input] == ["pose"] and [o.name for o in proto.graph.output] == ["joints"]
+    assert proto.graph.input[0].type.tensor_type.shape.dim[0].dim_param  # symbolic: any batch size
+    assert {o.domain: o.version for o in proto.opset_import}[""] == 18
+    props = {p.key: p.value for p in proto.metadata_props}
+    assert json.loads(props["boom_ik"])["joints"] == manifest["joints"]
+
+
+def test_manifest_describes_the_files(exported):
+    out, _, manifest = exported
+    assert manifest == json.loads((out / "cuikm.manifest.json").read_text())
+    assert manifest["method"] == "cuikm" and manifest["boom"] == "jumbo8"
+    assert manifest["input"]["name"] == "pose" and manifest["input"]["shape"] == ["batch", 6]
+    assert manifest["output"]["name"] == "joints" and manifest["output"]["shape"] == ["batch", 8]
+    joints = manifest["joints"]
+    assert [j["name"] for j in joints] == [f"q{i}" for i in range(1, 9)]
+    assert [j["unit"] for j in joints] == ["rad", "rad", "m", "rad", "rad", "rad", "rad", "m"]  # q3, q8 prismatic
+    assert "torch" in manifest["versions"]
+    for entry in manifest["files"].values():
+        assert hashlib.sha256((out / entry["file"]).read_bytes()).hexdigest() == entry["sha256"]
+    assert set(manifest["check"]["max_abs_diff_vs_eager"]) == set(manifest["files"])
+    assert manifest["check"]["holes"] == 1000
+    assert max(manifest["check"]["max_abs_diff_vs_eager"].values()) <= 1e-5
+    # the .pt2 carries the same description, for a rig that gets the file alone
+    extra = {export.META_FILE: ""}
+    torch.export.load(out / "cuikm.pt2", extra_files=extra)
+    assert json.loads(extra[export.META_FILE])["joints"] == joints
+
+
+def test_missing_or_corrupt_model_names_the_file_and_how_to_rebuild_it(tmp_path):
+    named = r"cuikm\.pt.*dvc repro train@cuikm.*python -m pipeline\.train method=cuikm"
+    for content in (None, b"not a checkpoint"):
+        if content is not None:
+            (tmp_path / "data" / "models").mkdir(parents=True)
+            (tmp_path / "data" / "models" / "cuikm.pt").write_bytes(content)
+        with pytest.raises(InputError, match=named):
+            export.run(cfg_for(tmp_path, "export.onnx=false"))
+    assert not (tmp_path / "data" / "export").exists()
+
+
+def test_onnx_required_without_the_extra_is_a_config_error(tmp_path, monkeypatch):
+    monkeypatch.setattr(export, "missing_onnx_packages", lambda: ["onnxscript"])
+    with pytest.raises(ConfigError, match=r"export\.onnx = true.*onnxscript.*\[onnx\]"):
+        export.run(cfg_for(tmp_path, "export.onnx=true"))
+    with pytest.raises(ConfigError, match=r"export\.onnx = 'maybe'"):
+        export.run(cfg_for(tmp_path, "export.onnx=maybe"))
+
+
+def test_without_the_extra_onnx_is_skipped_with_one_log_line(tmp_path, holes, monkeypatch, caplog):
+    monkeypatch.setattr(export, "missing_onnx_packages", lambda: ["onnx", "onnxruntime"])
+    save_tiny_network(tmp_path / "data", holes)
+    with caplog.at_level(logging.INFO, logger="pipeline.export"):
+        manifests = export.run(cfg_for(tmp_path, "export.torchscript=false", "export.check.holes=50"))
+    skipped = [r for r in caplog.records if "ONNX export skipped" in r.getMessage()]
+    assert len(skipped) == 1 and 'pip install -c constraints.txt -e ".[onnx]"' in skipped[0].getMessage()
+    assert sorted(p.name for p in (tmp_path / "data" / "export").iterdir()) == ["cuikm.manifest.json", "cuikm.pt2"]
+    assert manifests["cuikm"]["onnx_opset"] is None and "onnx" not in manifests["cuikm"]["versions"]
+
+
+def test_an_export_that_differs_from_torch_is_refused_and_removed(tmp_path, holes, monkeypatch):
+    save_tiny_network(tmp_path / "data", holes)
+    monkeypatch.setattr(export, "max_abs_diff", lambda run, model, pose: 1e-3)
+    with pytest.raises(ConfigError, match=r"export\.check\.tolerance = 1e-05: cuikm\.pt2 differs .* by 0\.001"):
+        export.run(cfg_for(tmp_path, "export.onnx=false", "export.torchscript=false", "export.check.holes=50"))
+    assert list((tmp_path / "data" / "export").iterdir()) == []
+
+
+def test_latency_benchmark_times_every_runtime_and_logs_to_mlflow(tmp_path):
+    bench = {"batches": "[1,20]", "compile": "false", "isolate": "false", "min_time_s": 0, "min_repeats": 3,
+             "rounds": 1}
+    cfg = compose([f"paths.data={tmp_path}/data", f"tracking.uri=sqlite:///{tmp_path}/mlflow.db",
+                   f"tracking.artifact_root={tmp_path}/art", "model.width=32", "model.depth=2",
+                   *(f"export.benchmark.{k}={v}" for k, v in bench.items())])
+    table = export_benchmark.run(cfg)
+    runtimes = ["torch eager", "torch.export (.pt2)", "torch.compile", "TorchScript (.ts)",
+                "ONNX Runtime, 1 thread", "ONNX Runtime, 2 threads"]
+    assert sorted(set(table["runtime"])) == sorted(runtimes) and sorted(set(table["holes"])) == [1, 20]
+    timed = table.dropna(subset=["median_ms"])
+    assert (timed["median_ms"] > 0).all() and (timed["repeats"] >= 3).all()
+    assert table.loc[table.runtime == "torch.compile", "note"].str.startswith("skipped").all()
+    on_disk = pd.read_csv(tmp_path / "data" / "export" / "latency.csv")
+    assert list(on_disk.columns) == export_benchmark.COLUMNS and len(on_disk) == len(table)
+    assert "| torch eager | 1 |" in (tmp_path / "data" / "export" / "latency.md").read_text()
+    client = MlflowClient(f"sqlite:///{tmp_path}/mlflow.db")
+    run = client.search_runs([client.get_experiment_by_name("boom-ik").experiment_id])[0]
+    assert run.info.run_name == "export-latency" and "latency_ms.torch_eager.holes_1" in run.data.metrics
+    assert {a.path for a in client.list_artifacts(run.info.run_id, "export")} == {"export/latency.csv",
+                                                                                   "export/latency.md"}
