@@ -62,7 +62,7 @@ def missing_onnx_packages() -> list[str]:
 
 def onnx_wanted(setting) -> bool:
     """``export.onnx``: true (required), false, or auto (exported when the extra is installed)."""
-    if setting not in (True, False, "auto"):
+    if not (isinstance(setting, bool) or setting == "auto"):  # not `in (True, False)`: 1 == True
         raise ConfigError(f"export.onnx = {setting!r}: expected true, false or auto")
     if setting is False:
         return False

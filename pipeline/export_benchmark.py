@@ -21,6 +21,7 @@ import logging
 import multiprocessing
 import os
 import platform
+import re
 import statistics
 import tempfile
 import time
@@ -145,11 +146,10 @@ def worker_block(name: str, i: int, min_time_s: float, min_repeats: int) -> list
 def measure(cfg: DictConfig) -> tuple[pd.DataFrame, IKNet]:
     """The latency table: one row per runtime and batch size.
 
-    Each runtime runs in its own process, as on a rig (``isolate``): runtimes sharing a process fight over
-    their thread pools (measured: torch eager on one hole went from 0.18 ms to 48 ms once a torch.compile'd
-    copy had run in the same process). ``isolate=false`` runs them all here, which starts in a fraction of the
-    time (tests, quick runs). The runtimes take turns, ``rounds`` blocks of calls each, so a load that comes
-    and goes on a shared machine slows each of them alike."""
+    Each runtime runs in its own process, as on a rig (``isolate``), so no runtime's thread pools, allocator
+    or compiled kernels are there while another is timed. ``isolate=false`` runs them all here, which starts
+    in a fraction of the time (tests, quick runs). The runtimes take turns, ``rounds`` blocks of calls each,
+    so a load that comes and goes on a shared machine slows each of them alike."""
     bcfg = cfg.export.benchmark
     check_settings(bcfg)
     pose = export.check_poses(cfg, as_dict(cfg.boom), max(bcfg.batches), int(bcfg.seed) + 1)
@@ -178,6 +178,7 @@ def measure(cfg: DictConfig) -> tuple[pd.DataFrame, IKNet]:
             for _ in range(rounds):
                 for name in setup:
                     times[name, i] += workers[name].submit(worker_block, name, i, block_s, block_n).result()
+    _workers.clear()  # isolate=false kept the runners in this process
     rows = []
     for i, x in enumerate(poses):
         for name, how in plan.items():
@@ -207,7 +208,7 @@ def markdown(table: pd.DataFrame, model: IKNet, about: dict) -> str:
     h = model.hparams
     rest = ", ".join(f"{k} {about[k]}" for k in about if k not in ("cpu", "cores", "torch_threads", "load"))
     lines = [f"Network {h['depth']} x {h['width']} {h['activation'].upper()} (random weights), float32. "
-             f"{about['cpu']}, {about['cores']} cores, {about['torch_threads']} torch threads, load average (1 min) "
+             f"{about['cpu']}, {about['cores']} cores, {about['torch_threads']} torch thread(s), load average (1 min) "
              f"{about['load']}; {rest}.",
              "", "| runtime | holes per call | median (ms) | µs per hole | setup (s) |", "|---|---|---|---|---|"]
     for r in table.itertuples():
@@ -227,7 +228,7 @@ def log_to_mlflow(cfg: DictConfig, table: pd.DataFrame, files: list[Path]) -> No
         tracking.log_params(tracking.flatten({"export.benchmark": as_dict(cfg.export.benchmark),
                                               "model": as_dict(cfg.model)}))
         timed_rows = table.dropna(subset=["median_ms"])
-        slug = lambda name: "".join(c if c.isalnum() else "_" for c in name.lower()).strip("_")
+        slug = lambda name: re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")  # ONNX Runtime, 1 thread -> onnx_...
         tracking.log_metrics({f"latency_ms.{slug(r.runtime)}.holes_{r.holes}": r.median_ms
                               for r in timed_rows.itertuples()})
         for path in files:
