@@ -67,16 +67,17 @@ def _ik_kwargs(ik) -> dict:
     return {"max_iters": int(ik.max_iters), "tol": float(ik.tol), "damping": float(ik.damping)}
 
 
-def face_joints(safety: SafetyModel, sampling: HoleSampling, n: int, seed: int, ik) -> torch.Tensor:
-    """``n`` joint vectors a rig uses at the face: nominal NM solutions of drillable holes (holes
-    NM does not reach are skipped, so a few extra are drawn)."""
-    pose, _ = sample_holes(n + max(10, n // 20), safety, sampling, seed)
+def face_holes(safety: SafetyModel, sampling: HoleSampling, n: int, seed: int, ik) -> tuple[torch.Tensor, torch.Tensor]:
+    """``n`` drillable face holes ``(n, 6)`` and their nominal NM solutions ``(n, n_joints)``: the
+    joint vectors a rig uses at the face. Holes NM does not reach are skipped (a few extra are drawn),
+    so no method is charged for a failure of the nominal IK."""
+    pose, _ = sample_holes(n + 10 + n // 10, safety, sampling, seed)
     q, err = solve_holes(safety.boom, pose, restarts=int(ik.restarts), seed=seed, **_ik_kwargs(ik))
-    q = q[err <= float(ik.tol)]
-    if len(q) < n:
-        raise InputError(f"calibration: only {len(q)} of {len(pose)} face holes (seed {seed}) were reached by NM; "
-                         f"{n} measured poses are needed")
-    return q[:n]
+    reached = err <= float(ik.tol)
+    if int(reached.sum()) < n:
+        raise InputError(f"calibration: NM reached only {int(reached.sum())} of {len(pose)} face holes (seed {seed}); "
+                         f"{n} are needed: raise calibration.ik.restarts or max_iters")
+    return pose[reached][:n], q[reached][:n]
 
 
 def residual_errors(true_boom: BoomWithErrors, safety: SafetyModel, q: torch.Tensor, pose: torch.Tensor) -> dict:
@@ -155,12 +156,10 @@ def build_setup(cfg: DictConfig) -> Setup:
     safety = build_safety(cfg.boom, cfg.tunnel, cfg.safety)
     sampling = HoleSampling(tuple(cfg.holes.face_x), float(cfg.holes.cone_deg), float(cfg.holes.inset))
     n_max = max(int(v) for v in ccfg.n_measurements)
-    q_measured = face_joints(safety, sampling, n_max, int(ccfg.seeds.poses), ccfg.ik)
-    log.info("measured joint vectors: %d nominal NM solutions of face holes", len(q_measured))
-    holdout, _ = sample_holes(int(ccfg.holdout), safety, sampling, int(ccfg.seeds.holdout))
-    theta, err = solve_holes(safety.boom, holdout, restarts=int(ccfg.ik.restarts), seed=int(ccfg.seeds.holdout),
-                             **_ik_kwargs(ccfg.ik))
-    log.info("held-out holes: %d, nominal NM reached %d", len(holdout), int((err <= float(ccfg.ik.tol)).sum()))
+    _, q_measured = face_holes(safety, sampling, n_max, int(ccfg.seeds.poses), ccfg.ik)
+    holdout, theta = face_holes(safety, sampling, int(ccfg.holdout), int(ccfg.seeds.holdout), ccfg.ik)
+    log.info("measured joint vectors: %d; held-out holes: %d (nominal NM solutions of face holes)",
+             len(q_measured), len(holdout))
     basis = identifiable_basis(safety.boom, Weights(**ccfg.identification.weights),
                                int(ccfg.identification.basis_poses), seed=int(ccfg.seeds.poses))
     return Setup(safety, q_measured, holdout, theta, basis)
