@@ -196,9 +196,19 @@ def test_bad_measurement_files_name_file_row_and_column(jumbo8, tmp_path, edit, 
 
 
 # ---------------------------------------------------------------- identification
-def test_identifiable_basis_merges_aliased_parameters(basis):
+def test_identifiable_basis_merges_aliased_parameters(jumbo8, basis):
     merged = basis.merged
     assert len(basis.kept) == 31  # jumbo8, collar + direction: 48 components, 17 aliased or invisible
+    # independent check: rank of a central-difference Jacobian of BoomWithErrors' collar and direction
+    q, eps, cols = _joints(jumbo8, 60, 14), 1e-6, []
+    for k in range(48):
+        t = torch.zeros(48, dtype=torch.float64)
+        t[k] = eps
+        (p1, z1), (p0, z0) = (BoomWithErrors(jumbo8, s.reshape(8, 6)).tool_pose(q) for s in (t, -t))
+        cols.append(torch.cat([p1 - p0, 10 * (z1 - z0)], -1).reshape(-1) / (2 * eps))
+    J = torch.stack(cols, -1)
+    sv = torch.linalg.svdvals(J / J.norm(dim=0).clamp_min(1e-30))  # q8.rz moves nothing: a zero column
+    assert int((sv > 1e-6 * sv[0]).sum()) == 31 and sv[30] > 1e-3 * sv[0]
     assert merged["q3.rz"] == [("q4.rz", pytest.approx(1.0, abs=1e-6))]  # extension tube roll = q4 rotation
     assert merged["q8.rz"] == []  # roll about the drill axis: invisible
     assert "q4.rz" in basis.kept_names and "q8.tz" in basis.kept_names

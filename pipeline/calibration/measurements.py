@@ -120,8 +120,10 @@ def read_measurements(path: str | Path, boom: Boom, angle_unit: str = "rad", len
         bad = np.flatnonzero(~np.isfinite(v))
         if bad.size:
             r = int(bad[0])
+            raw = df[col].iloc[r]
+            shown = repr(raw) if isinstance(raw, str) else str(raw)  # 'abc', nan, inf (not np.float64(nan))
             raise InputError(
-                f"{path}: row {r + 1} (line {r + 2}), column '{col}': value {df[col].iloc[r]!r} is not a finite "
+                f"{path}: row {r + 1} (line {r + 2}), column '{col}': value {shown} is not a finite "
                 f"number ({bad.size} such row(s) in that column)"
             )
         values[col] = v
@@ -135,9 +137,10 @@ def read_measurements(path: str | Path, boom: Boom, angle_unit: str = "rad", len
         joint = boom.joints[j]
         unit = angle_unit if joint.revolute else length_unit
         scale = a_s if joint.revolute else l_s
+        value = float(values[joint.name][r])
         raise InputError(
-            f"{path}: row {r + 1} (line {r + 2}), column '{joint.name}': {values[joint.name][r]!r} {unit} lies outside "
-            f"the joint range [{float(lo[j]) / scale:.4g}, {float(hi[j]) / scale:.4g}] {unit}; check "
+            f"{path}: row {r + 1} (line {r + 2}), column '{joint.name}': {value:.6g} {unit} lies "
+            f"outside the joint range [{float(lo[j]) / scale:.4g}, {float(hi[j]) / scale:.4g}] {unit}; check "
             "calibration.file_units"
         )
     collar = torch.tensor(np.stack([values[c] for c in COLLAR_COLUMNS], -1), dtype=DTYPE) * l_s
