@@ -18,32 +18,29 @@ import logging
 import math
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import hydra
-import matplotlib
+import pandas as pd
+import torch
+from omegaconf import DictConfig, OmegaConf
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import pandas as pd  # noqa: E402
-import torch  # noqa: E402
-from omegaconf import DictConfig, OmegaConf  # noqa: E402
-
-from pipeline.calibration.compensation import INITS, NetworkParams, fit_compensator, training_pairs  # noqa: E402
-from pipeline.calibration.error_model import BoomWithErrors, ErrorLevel, draw_errors  # noqa: E402
-from pipeline.calibration.identification import Basis, Weights, identifiable_basis, identify  # noqa: E402
-from pipeline.calibration.ik import solve_holes  # noqa: E402
-from pipeline.calibration.measurements import Measurements, Sensor, read_measurements, simulate  # noqa: E402
-from pipeline.calibration.model_file import save_model  # noqa: E402
-from pipeline.calibration.swarm import PSOParams, SSAParams  # noqa: E402
-from pipeline.core.build import build_safety  # noqa: E402
-from pipeline.core.config import project_path  # noqa: E402
-from pipeline.core.errors import ConfigError, InputError  # noqa: E402
-from pipeline.core.io import atomic_write, write_text  # noqa: E402
-from pipeline.data.holes import HoleSampling, sample_holes  # noqa: E402
-from pipeline.data.tables import write_csv  # noqa: E402
-from pipeline.geometry.collision import SafetyModel  # noqa: E402
-from pipeline.solvers.base import HoleTargets  # noqa: E402
+from pipeline.calibration.compensation import INITS, NetworkParams, fit_compensator, training_pairs
+from pipeline.calibration.error_model import BoomWithErrors, ErrorLevel, draw_errors
+from pipeline.calibration.identification import Basis, Weights, identifiable_basis, identify
+from pipeline.calibration.ik import solve_holes
+from pipeline.calibration.measurements import Measurements, Sensor, read_measurements, simulate
+from pipeline.calibration.model_file import save_model
+from pipeline.calibration.swarm import PSOParams, SSAParams
+from pipeline.core.build import build_safety
+from pipeline.core.config import project_path
+from pipeline.core.device import configure_process
+from pipeline.core.errors import ConfigError, InputError
+from pipeline.core.io import save_figure, write_csv, write_text
+from pipeline.data.holes import HoleSampling, sample_holes
+from pipeline.evaluation.plots import calibration_figure
+from pipeline.geometry.collision import SafetyModel
+from pipeline.solvers.base import HoleTargets
+from pipeline.tracking.runs import StageRun, TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
 
@@ -180,28 +177,6 @@ def check_config(ccfg) -> None:
         raise ConfigError(f"calibration.holdout = {ccfg.holdout}: expected a positive integer")
 
 
-def residual_figure(df: pd.DataFrame):
-    """Residual collar and direction error against measurements, per method, one column per level."""
-    levels = list(dict.fromkeys(df["level"]))
-    fig, axes = plt.subplots(2, len(levels), figsize=(5.5 * len(levels), 7.5), squeeze=False)
-    for j, level in enumerate(levels):
-        sub = df[df["level"] == level]
-        for method in dict.fromkeys(sub["method"]):
-            m = sub[sub["method"] == method].dropna(subset=["collar_mm_mean"])
-            style = {"ls": "--", "color": "k"} if method == "uncompensated" else {"marker": "o"}
-            axes[0, j].plot(m["n_measurements"], m["collar_mm_mean"], label=method, **style)
-            axes[1, j].plot(m["n_measurements"], m["direction_deg_mean"], label=method, **style)
-        axes[0, j].set(title=f"level: {level}", ylabel="mean collar error (mm)")
-        axes[1, j].set(xlabel="measured poses", ylabel="mean direction error (deg)")
-        for ax in axes[:, j]:
-            ax.set(xscale="log", yscale="log")
-            ax.grid(True, which="both", alpha=0.3)
-    axes[0, 0].legend(fontsize=8)
-    fig.suptitle("Residual error on held-out face holes, executed on the true boom")
-    fig.tight_layout()
-    return fig
-
-
 def markdown(df: pd.DataFrame) -> str:
     cols = ["method", "level", "n_measurements", "collar_mm_mean", "collar_mm_max", "direction_deg_mean"]
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
@@ -211,28 +186,8 @@ def markdown(df: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
-def log_to_mlflow(tracking_cfg, run_name: str, params: dict, metrics: dict, table: pd.DataFrame | None = None,
-                  figure=None, artifacts: list[Path] = ()) -> None:
-    """One MLflow run for the stage: params, metrics, the results table, the figure, files."""
-    import mlflow
-
-    from pipeline.tracking import runs as tracking
-
-    tracking.setup(tracking_cfg.uri, tracking_cfg.experiment, tracking_cfg.artifact_root)
-    with tracking.start(run_name=run_name, tags={"stage": "calibrate"}):
-        tracking.log_params(tracking.flatten(params))
-        tracking.log_metrics({k: v for k, v in metrics.items() if math.isfinite(v)})
-        if table is not None:
-            mlflow.log_table(table, "tables/calibration.json")
-        if figure is not None:
-            mlflow.log_figure(figure, "figures/residual_vs_measurements.png")
-        for path in artifacts:
-            tracking.log_artifact(path, "calibration")
-
-
-def run_study(cfg: DictConfig) -> pd.DataFrame:
+def run_study(cfg: DictConfig, mlrun: StageRun) -> pd.DataFrame:
     ccfg = cfg.calibration
-    check_config(ccfg)
     out = project_path(cfg.paths.data) / "calibration"
     start = time.perf_counter()
     setup = build_setup(cfg)
@@ -266,19 +221,20 @@ def run_study(cfg: DictConfig) -> pd.DataFrame:
                f"{int(ccfg.identification.basis_poses)} generic poses):\n\n" + ", ".join(basis.kept_names)
                + "\n\nDropped, and how each merges into the kept ones (first order):\n\n"
                + "".join(f"- {line}\n" for line in basis.describe()), out / "identifiability.md")
-    fig = residual_figure(df)
-    atomic_write(out / "figures" / "residual_vs_measurements.png", lambda tmp: fig.savefig(tmp, dpi=120, format="png"))
+    fig = calibration_figure(df)
+    save_figure(fig, out / "figures" / "residual_vs_measurements.png")
     log.info("calibration study: %d rows in %.0f s -> %s", len(df), wall, out)
-    if cfg.tracking.enabled:
-        metrics = {f"{r['level']}.{r['method']}.n{r['n_measurements']}.{k}": r[k]
-                   for r in rows for k in ("collar_mm_mean", "collar_mm_max", "direction_deg_mean")}
-        log_to_mlflow(cfg.tracking, "calibrate", {"calibration": OmegaConf.to_container(ccfg, resolve=True)},
-                      {**metrics, "wall_s": wall}, df, fig, [out / "results.csv", out / "identifiability.md", *written])
-    plt.close(fig)
+    mlrun.log_metrics({**{f"{r['level']}.{r['method']}.n{r['n_measurements']}.{k}": r[k]
+                          for r in rows for k in ("collar_mm_mean", "collar_mm_max", "direction_deg_mean")},
+                       "wall_s": wall})
+    mlrun.log_table(df, "tables/calibration.json")
+    mlrun.log_figure(fig, "figures/residual_vs_measurements.png")
+    for path in [out / "results.csv", out / "identifiability.md", *written]:
+        mlrun.log_artifact(path, "calibration")
     return df
 
 
-def fit_file(cfg: DictConfig):
+def fit_file(cfg: DictConfig, mlrun: StageRun):
     """Fit the identified model to a measurement file and write it to ``calibration.model_file``."""
     ccfg = cfg.calibration
     safety = build_safety(cfg.boom, cfg.tunnel, cfg.safety)
@@ -295,22 +251,27 @@ def fit_file(cfg: DictConfig):
     save_model(out, nominal, fit.twists, basis.kept_names, summary, basis.describe())
     log.info("identified %d parameters from %d measurements of %s: residual rms %.3g mm / %.3g deg -> %s",
              fit.rank, len(meas), path, fit.collar_rms_mm, fit.direction_rms_deg, out)
-    if cfg.tracking.enabled:
-        log_to_mlflow(cfg.tracking, "calibrate-fit", {"measurements": str(path), "calibration": {
-            "identification": OmegaConf.to_container(ccfg.identification, resolve=True)}},
-            {k: float(v) for k, v in summary.items() if k != "measurements"}, artifacts=[out])
+    mlrun.log_metrics({k: float(v) for k, v in summary.items() if k != "measurements"})
+    mlrun.log_artifact(out, "calibration")
     return fit
 
 
 def run(cfg: DictConfig):
-    torch.set_num_threads(int(cfg.calibration.threads))
-    if cfg.get("measurements"):
-        return fit_file(cfg)
-    return run_study(cfg)
+    """The study (default), or the fit of a measurement file (``measurements=<file>``)."""
+    tracking = TrackingSettings.from_config(cfg.tracking)
+    check_config(cfg.calibration)
+    fitting = bool(cfg.get("measurements"))
+    if fitting and not project_path(cfg.measurements).is_file():  # before any run exists
+        raise InputError(f"measurements = {cfg.measurements}: no such file")
+    with stage_run(tracking, "calibrate-fit" if fitting else "calibrate", {"stage": "calibrate"}) as mlrun:
+        mlrun.log_params({"calibration": OmegaConf.to_container(cfg.calibration, resolve=True),
+                          "measurements": str(cfg.get("measurements"))})
+        return fit_file(cfg, mlrun) if fitting else run_study(cfg, mlrun)
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
+    configure_process(cfg.calibration.threads)  # one thread: see conf/calibration/default.yaml
     run(cfg)
 
 

@@ -37,12 +37,13 @@ from omegaconf import DictConfig
 
 from pipeline.core.build import build_safety, load_boom
 from pipeline.core.config import project_path
-from pipeline.core.errors import ConfigError, InputError
+from pipeline.core.errors import ConfigError
 from pipeline.core.io import atomic_write, write_json
 from pipeline.data.holes import HoleSampling, sample_holes
 from pipeline.data.tables import POSE_COLUMNS
 from pipeline.geometry.kinematics import Boom
-from pipeline.learning.models import IKNet, load_checkpoint
+from pipeline.learning.models import IKNet, check_network_fits, load_checkpoint
+from pipeline.tracking.runs import TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
 
@@ -114,20 +115,11 @@ def settings(ecfg: DictConfig) -> Settings:
 # --- checkpoints and holes ------------------------------------------------------------------------------------
 
 def load_network(models_dir: Path, method: str) -> tuple[IKNet, dict]:
-    """The trained network of ``method`` (frozen, eval mode) and its checkpoint metadata."""
+    """The trained network of ``method`` (frozen, eval mode) and its checkpoint metadata; a missing or
+    unreadable checkpoint is named with how to rebuild it (:func:`load_checkpoint`)."""
     path = models_dir / f"{method}.pt"
-    rebuild = f"rebuild it with `dvc repro train@{method}` or `python -m pipeline.train method={method}`"
-    if not path.is_file():
-        raise InputError(f"{path}: no such model checkpoint (export.methods has {method!r}); {rebuild}")
-    try:
-        model, meta = load_checkpoint(path)
-        boom = Boom.from_config(meta["boom"])
-    except Exception as exc:  # truncated or foreign files fail in torch.load, unpickling or load_state_dict
-        raise InputError(f"{path}: not a readable boom-ik checkpoint ({type(exc).__name__}: {exc}); {rebuild}") \
-            from exc
-    if model.n_out != boom.n_joints:
-        raise InputError(f"{path}: the network outputs {model.n_out} joints; its boom '{boom.name}' has "
-                         f"{boom.n_joints}; {rebuild}")
+    model, meta = load_checkpoint(path)
+    check_network_fits(model, load_boom(meta["boom"]), str(path))
     return model.requires_grad_(False), meta
 
 
@@ -312,7 +304,7 @@ def export_method(method: str, checkpoint: Path, model: IKNet, meta: dict, pose:
 
 def run(cfg: DictConfig) -> dict[str, dict]:
     """Export every network of ``export.methods``; returns the manifests by method."""
-    st = settings(cfg.export)
+    st, tracking = settings(cfg.export), TrackingSettings.from_config(cfg.tracking)
     models = project_path(cfg.paths.data) / "models"
     networks = {m: load_network(models, m) for m in st.methods}  # every checkpoint read before writing
     if "torchscript" in st.formats:
@@ -320,12 +312,16 @@ def run(cfg: DictConfig) -> dict[str, dict]:
                  "skips it)", torch.__version__)
     out = project_path(cfg.paths.data) / "export"
     manifests = {}
-    for method, (model, meta) in networks.items():
-        pose = check_poses(cfg, meta["boom"], st.holes, st.seed)
-        manifests[method] = m = export_method(method, models / f"{method}.pt", model, meta, pose, out, st)
-        log.info("%s: %s written to %s; largest difference to eager torch on %d holes: %s", method,
-                 ", ".join(f["file"] for f in m["files"].values()), out, st.holes,
-                 ", ".join(f"{k} {v:.1e}" for k, v in m["check"]["max_abs_diff_vs_eager"].items()))
+    with stage_run(tracking, "export", {"stage": "export"}) as mlrun:
+        mlrun.log_params({"export": {"methods": st.methods, "formats": st.formats, "opset": st.opset}})
+        for method, (model, meta) in networks.items():
+            pose = check_poses(cfg, meta["boom"], st.holes, st.seed)
+            manifests[method] = m = export_method(method, models / f"{method}.pt", model, meta, pose, out, st)
+            mlrun.log_metrics(m["check"]["max_abs_diff_vs_eager"], prefix=f"{method}.max_abs_diff.")
+            mlrun.log_artifact(out / f"{method}.manifest.json", "export")
+            log.info("%s: %s written to %s; largest difference to eager torch on %d holes: %s", method,
+                     ", ".join(f["file"] for f in m["files"].values()), out, st.holes,
+                     ", ".join(f"{k} {v:.1e}" for k, v in m["check"]["max_abs_diff_vs_eager"].items()))
     return manifests
 
 

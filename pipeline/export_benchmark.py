@@ -37,9 +37,9 @@ from pipeline import export
 from pipeline.core.build import load_boom
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError
-from pipeline.core.io import write_text
-from pipeline.data.tables import write_csv
+from pipeline.core.io import write_csv, write_text
 from pipeline.learning.models import IKNet, build_model, load_checkpoint, save_checkpoint
+from pipeline.tracking.runs import TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
 
@@ -219,23 +219,8 @@ def markdown(table: pd.DataFrame, model: IKNet, about: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def log_to_mlflow(cfg: DictConfig, table: pd.DataFrame, files: list[Path]) -> None:
-    """One MLflow run ``export-latency``: the settings, a metric per runtime and batch size, the tables."""
-    from pipeline.tracking import runs as tracking
-
-    tracking.setup(cfg.tracking.uri, cfg.tracking.experiment, cfg.tracking.artifact_root)
-    with tracking.start(run_name="export-latency", tags={"stage": "export"}):
-        tracking.log_params(tracking.flatten({"export.benchmark": as_dict(cfg.export.benchmark),
-                                              "model": as_dict(cfg.model)}))
-        timed_rows = table.dropna(subset=["median_ms"])
-        slug = lambda name: re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")  # ONNX Runtime, 1 thread -> onnx_...
-        tracking.log_metrics({f"latency_ms.{slug(r.runtime)}.holes_{r.holes}": r.median_ms
-                              for r in timed_rows.itertuples()})
-        for path in files:
-            tracking.log_artifact(path, "export")
-
-
 def run(cfg: DictConfig) -> pd.DataFrame:
+    tracking = TrackingSettings.from_config(cfg.tracking)
     load_before = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     threads = torch.get_num_threads()
     try:
@@ -247,8 +232,14 @@ def run(cfg: DictConfig) -> pd.DataFrame:
     text = markdown(table, model, about)
     write_csv(table, out / "latency.csv")
     write_text(text, out / "latency.md")
-    if cfg.tracking.enabled:
-        log_to_mlflow(cfg, table, [out / "latency.csv", out / "latency.md"])
+    with stage_run(tracking, "export-latency", {"stage": "export"}) as mlrun:
+        mlrun.log_params({"export.benchmark": as_dict(cfg.export.benchmark), "model": as_dict(cfg.model),
+                          "machine": about})
+        slug = lambda name: re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")  # noqa: E731  ONNX Runtime, 1 thread -> onnx_...
+        mlrun.log_metrics({f"latency_ms.{slug(r.runtime)}.holes_{r.holes}": r.median_ms
+                           for r in table.dropna(subset=["median_ms"]).itertuples()})
+        for path in (out / "latency.csv", out / "latency.md"):
+            mlrun.log_artifact(path, "export")
     log.info("latency written to %s\n%s", out / "latency.md", text)
     return table
 

@@ -102,9 +102,9 @@ def load_solve_boom(boom_cfg, boom_model):
     """The nominal boom of ``boom/``, or a calibrated one (``boom_model=<file>``)."""
     if not boom_model:
         return load_boom(boom_cfg)
-    from pipeline.calibration.model_file import load_boom_model
+    from pipeline.calibration.model_file import load_model
 
-    return load_boom_model(project_path(boom_model))
+    return load_model(project_path(boom_model))
 
 
 def load_network(settings: SolveSettings, models_dir: Path, boom, tracking: TrackingSettings):

@@ -98,7 +98,7 @@ def test_manifest_describes_the_files(exported):
 
 
 def test_missing_or_corrupt_model_names_the_file_and_how_to_rebuild_it(tmp_path):
-    named = r"cuikm\.pt.*dvc repro train@cuikm.*python -m pipeline\.train method=cuikm"
+    named = r"cuikm\.pt.*python -m pipeline\.train method=cuikm.*dvc repro train@cuikm"
     for content in (None, b"not a checkpoint"):
         if content is not None:
             (tmp_path / "data" / "models").mkdir(parents=True)

@@ -7,7 +7,7 @@ import torch
 
 from pipeline.geometry.kinematics import Boom
 from pipeline.solvers.base import HoleTargets, Solver, Targets, tool_transform
-from pipeline.solvers.nm import LevenbergMarquardt
+from pipeline.solvers.nm import NMSolver
 
 
 class GivenStart(Solver):
@@ -41,14 +41,14 @@ def solve_holes(boom: Boom, pose6: torch.Tensor, start: torch.Tensor | None = No
     while left > 0 and len(todo):
         k = min(rounds_of, left)
         init = None if q is None else GivenStart(boom, q[todo])
-        nm = LevenbergMarquardt(boom, max_iters=k, tol=tol, damping=damping, name="nm", init=init)
+        nm = NMSolver(boom, max_iters=k, tol=tol, damping=damping, name="nm", init=init)
         q_new = nm.solve(targets.subset(todo)).q
         q = q_new if q is None else q.index_copy(0, todo, q_new)
         with torch.no_grad():
             reached = targets.subset(todo).residual(tool_transform(boom, q_new)).norm(dim=-1) <= tol
         todo, left = todo[~reached], left - k
     if restarts and len(todo):
-        nm = LevenbergMarquardt(boom, max_iters=max_iters, tol=tol, damping=damping, restarts=restarts, seed=seed,
+        nm = NMSolver(boom, max_iters=max_iters, tol=tol, damping=damping, restarts=restarts, seed=seed,
                                 name="nm", init=GivenStart(boom, q[todo]))
         q = q.index_copy(0, todo, nm.solve(targets.subset(todo)).q)
     with torch.no_grad():

@@ -155,7 +155,7 @@ def read_measurements(path: str | Path, boom: Boom, angle_unit: str = "rad", len
 
 def write_measurements(meas: Measurements, boom: Boom, path: str | Path) -> None:
     """The CSV layout :func:`read_measurements` reads (SI units), e.g. to hand simulated data over."""
-    from pipeline.data.tables import write_csv
+    from pipeline.core.io import write_csv
 
     arr = torch.cat([meas.q, meas.collar, meas.direction], -1).cpu().numpy()
     write_csv(pd.DataFrame(arr, columns=boom.joint_names + COLLAR_COLUMNS + DIRECTION_COLUMNS), path)

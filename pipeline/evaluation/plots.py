@@ -206,3 +206,25 @@ def collar_clouds(sets: dict[str, np.ndarray], tunnel: Horseshoe, shares: dict[s
         side.set(xlabel="x (m)", ylabel="z (m)", title=f"{name}: collars, side", xlim=(-2, 10), ylim=(-3, 9))
     fig.tight_layout()
     return fig
+
+
+def calibration_figure(df: pd.DataFrame):
+    """Residual collar and direction error against measurements, per method, one column per level."""
+    levels = list(dict.fromkeys(df["level"]))
+    fig, axes = figure(2, len(levels), figsize=(5.5 * len(levels), 7.5), squeeze=False)
+    for j, level in enumerate(levels):
+        sub = df[df["level"] == level]
+        for method in dict.fromkeys(sub["method"]):
+            m = sub[sub["method"] == method].dropna(subset=["collar_mm_mean"])
+            style = {"ls": "--", "color": "k"} if method == "uncompensated" else {"marker": "o"}
+            axes[0, j].plot(m["n_measurements"], m["collar_mm_mean"], label=method, **style)
+            axes[1, j].plot(m["n_measurements"], m["direction_deg_mean"], label=method, **style)
+        axes[0, j].set(title=f"level: {level}", ylabel="mean collar error (mm)")
+        axes[1, j].set(xlabel="measured poses", ylabel="mean direction error (deg)")
+        for ax in axes[:, j]:
+            ax.set(xscale="log", yscale="log")
+            ax.grid(True, which="both", alpha=0.3)
+    axes[0, 0].legend(fontsize=8)
+    fig.suptitle("Residual error on held-out face holes, executed on the true boom")
+    fig.tight_layout()
+    return fig
