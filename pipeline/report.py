@@ -17,7 +17,7 @@ from omegaconf import DictConfig
 from pipeline.core.config import project_path
 from pipeline.core.errors import InputError
 from pipeline.core.io import copy_file, write_text
-from pipeline.evaluation.paper_numbers import PAPER000, PAPER000_TABLE3
+from pipeline.evaluation.paper_numbers import PAPER000, PAPER000_CUIKM_GAIN, PAPER000_TABLE3
 from pipeline.geometry.collision import SAFETY_KINDS
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
@@ -38,7 +38,7 @@ def render(metrics: dict, collisions: pd.DataFrame, figures: list[str]) -> str:
         "| collision rate (%) | paper (%) | holes with any violation (%) | solve time / 1 000 holes (ms) |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for m in sorted(metrics, key=lambda m: (list(PAPER000).index(m) if m in PAPER000 else 99, m)):
+    for m in sorted(metrics, key=lambda m: (list(PAPER000).index(m) if m in PAPER000 else 0.5, m)):
         s, paper = metrics[m], PAPER000.get(m, {})
         lines.append(
             f"| {m.upper()} | {s['hole_mm_mean']:.2f} | {_fmt(paper.get('hole_mm_mean'), '.1f')} "
@@ -47,6 +47,10 @@ def render(metrics: dict, collisions: pd.DataFrame, figures: list[str]) -> str:
             f"| {_fmt(paper.get('collision_rate_pct'))} | {100 * s['any_violation_share']:.2f} "
             f"| {s['solve_ms_per_1000']:.2f} |"
         )
+    if "sikm" in metrics and "cuikm" in metrics:  # paper 000's headline: CUIKM's error reduction over SIKM
+        gain = 1 - metrics["cuikm"]["hole_mm_mean"] / metrics["sikm"]["hole_mm_mean"]
+        lines += ["", f"CUIKM's mean hole-seeking error is {100 * gain:.2f} % below SIKM's "
+                      f"(paper 000: {100 * PAPER000_CUIKM_GAIN:.2f} %)."]
     lines += ["", "## Collisions per test group (paper 000 Table 3 layout; paper's counts in brackets)", "",
               "| group | method | " + " | ".join(SAFETY_KINDS) + " |", "|---|---|" + "---|" * len(SAFETY_KINDS)]
     for _, row in collisions.iterrows():
@@ -68,10 +72,13 @@ def run(cfg: DictConfig) -> str:
             raise InputError(f"{needed}: missing; run python -m pipeline.evaluate (or dvc repro evaluate) first")
     metrics = json.loads((ev / "metrics.json").read_text())
     collisions = pd.read_csv(ev / "collisions.csv")
-    figures = sorted(p.name for p in (ev / "figures").glob("*.png"))
+    # the evaluation's figures, and paper 000's Fig. 5 (the hole sets' collars) from generate
+    sources = {p.name: p for p in [*sorted((ev / "figures").glob("*.png")), data / "figures" / "collar_clouds.png"]
+               if p.is_file()}
+    figures = list(sources)
     with stage_run(tracking, "report", {"stage": "report"}) as mlrun:
-        for name in figures:
-            copy_file(ev / "figures" / name, out / "figures" / name)
+        for name, src in sources.items():
+            copy_file(src, out / "figures" / name)
         text = render(metrics, collisions, figures)
         write_text(text, out / "README.md")
         mlrun.log_text(text, "report/README.md")

@@ -54,7 +54,7 @@ def run(cfg: DictConfig) -> dict:
     # A sweep job keeps its model in its own job folder; a single run writes paths.data/models.
     models_dir = require_writable(sweep.job_output_dir() or project_path(cfg.paths.data) / "models", "paths.data")
     data = load_training_data(project_path(cfg.paths.data) / "holes", safety.boom, safety, sampling,
-                              method.supervised, settings.val_size, settings.val_seed)
+                              method.supervised, settings.val_size, settings.val_seed, method.sup_set)
     with torch.random.fork_rng(devices=[]):  # seeded initial weights without touching the global generator
         torch.manual_seed(settings.seed)
         model = build_model(safety.boom, data.pose.mean(0), data.pose.std(0), model_s.width, model_s.depth,

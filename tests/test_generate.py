@@ -17,7 +17,8 @@ from pipeline.generate import run
 from pipeline.geometry.collision import SAFETY_KINDS
 from pipeline.geometry.tunnel import Horseshoe
 
-SMALL = ["holes.unsup.size=1500", "holes.sup.size=800", "holes.test.size=300"]
+SMALL = ["holes.unsup.size=1500", "holes.sup.size=800", "holes.test.size=300", "holes.sup_variants.sup_best.size=300",
+         "tracking.enabled=false"]
 
 
 @pytest.fixture(scope="module")
@@ -40,9 +41,9 @@ def test_files_and_columns(generated):
     sup = pd.read_parquet(holes / "sup.parquet")
     assert list(sup.columns) == ["hole_id", *(f"q{i}" for i in range(1, 9)), *POSE_COLUMNS]
     on_disk = json.loads((holes / "meta.json").read_text())
-    assert on_disk["seeds"] == {"unsup": 0, "sup": 1, "test": [101, 102, 103, 104, 105]}
+    assert on_disk["seeds"] == {"unsup": 0, "sup": {"sup": 1, "sup_best": 2}, "test": [101, 102, 103, 104, 105]}
     assert 0 < on_disk["unsup_rejection"]["rejection_rate"] < 1
-    assert set(on_disk["sup_violation_share"]) == {*SAFETY_KINDS, "any"}
+    assert set(on_disk["sup_sets"]["sup"]["violation_share"]) == {*SAFETY_KINDS, "any"}
     assert on_disk["config"]["boom"]["name"] == "jumbo8"
 
 
@@ -94,6 +95,7 @@ def test_other_seed_changes_the_data(generated, tmp_path):
 
 def test_cone_angle_is_a_config_value(tmp_path):
     run(compose(["holes.unsup.size=500", "holes.sup.size=10", "holes.test.size=10", "holes.cone_deg=5",
+                 "holes.sup_variants.sup_best.size=10", "tracking.enabled=false",
                  f"paths.data={tmp_path}"]))
     df = pd.read_parquet(tmp_path / "holes" / "train.parquet")
     axis = df[POSE_COLUMNS[3:]].to_numpy() - df[POSE_COLUMNS[:3]].to_numpy()

@@ -308,4 +308,4 @@ def test_an_interrupted_generate_leaves_the_old_set_whole(tmp_path, make_cfg, mo
     with pytest.raises(KeyboardInterrupt):
         generate.run(make_cfg(tmp_path, *TINY, "holes.unsup.seed=9"))
     assert {p.name: p.read_bytes() for p in holes.iterdir()} == before
-    assert sorted(p.name for p in (tmp_path / "data").iterdir()) == ["holes"]  # no staging folder left
+    assert not [p.name for p in (tmp_path / "data").iterdir() if p.name.startswith(".")]  # no staging folder left

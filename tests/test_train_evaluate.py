@@ -26,7 +26,7 @@ def study(tmp_path_factory, make_cfg):
     tmp = tmp_path_factory.mktemp("study")
     generate.run(make_cfg(tmp))
     trained = {m: train.run(make_cfg(tmp, f"method={m}")) for m in METHODS}
-    metrics = evaluate.run(make_cfg(tmp))
+    metrics = evaluate.run(make_cfg(tmp, f"eval.methods=[{','.join(METHODS)}]"))
     return tmp, trained, metrics
 
 

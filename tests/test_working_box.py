@@ -81,7 +81,7 @@ def test_full_ranges_stay_available(tmp_path, make_cfg):
     cfg = make_cfg(tmp_path, "sup_box=full", "holes.sup.size=500", "holes.unsup.size=200", "holes.test.size=20")
     assert cfg.holes.sup.box is None
     meta = generate.run(cfg)
-    assert meta["sup_box"] is None and meta["sup_face_window_share"] < 0.06
+    assert meta["sup_box"] is None and meta["sup_sets"]["sup"]["face_window_share"] < 0.06
 
 
 def test_too_few_solved_holes_is_an_error(safety):

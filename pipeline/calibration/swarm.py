@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import torch
 
 from pipeline.solvers.base import require
+from pipeline.solvers.pso import keep_better
 
 DTYPE = torch.float64
 Objective = Callable[[torch.Tensor], torch.Tensor]
@@ -97,15 +98,16 @@ def pso_minimize(f: Objective, lower, upper, dim: int, params: PSOParams, seed: 
         v = w * v + params.c1 * r1 * (pbest - x) + params.c2 * r2 * (gbest - x)
         v = torch.maximum(torch.minimum(v, vmax), -vmax)
         x = torch.maximum(torch.minimum(x + v, hi), lo)
-        fx = f(x)
-        better = fx < pbest_f
-        pbest = torch.where(better[:, None], x, pbest)
-        pbest_f = torch.where(better, fx, pbest_f)
-        i = int(pbest_f.argmin())
-        if float(pbest_f[i]) < gbest_f:
-            gbest, gbest_f = pbest[i].clone(), float(pbest_f[i])
+        pbest, pbest_f, _ = keep_better(pbest, pbest_f, x, f(x))
+        gbest, gbest_f = _best(pbest, pbest_f, gbest, gbest_f)
         history.append(gbest_f)
     return SwarmResult(gbest, gbest_f, history)
+
+
+def _best(X: torch.Tensor, F: torch.Tensor, best: torch.Tensor, best_f: float) -> tuple[torch.Tensor, float]:
+    """The swarm's best so far: ``best`` unless a member of ``X`` (fitness ``F``) beats it."""
+    i = int(F.argmin())
+    return (X[i].clone(), float(F[i])) if float(F[i]) < best_f else (best, best_f)
 
 
 def ssa_minimize(f: Objective, lower, upper, dim: int, params: SSAParams, seed: int) -> SwarmResult:
@@ -170,12 +172,8 @@ def ssa_minimize(f: Objective, lower, upper, dim: int, params: SSAParams, seed: 
         f_new[:n_prod] = f_prod
         if rest.any():
             f_new[rest] = f(new[rest])
-        keep = f_new < F  # each sparrow keeps its best position (the reference code's greedy memory)
-        X = torch.where(keep[:, None], new, X)
-        F = torch.where(keep, f_new, F)
-        i = int(F.argmin())
-        if float(F[i]) < best_f:
-            best, best_f = X[i].clone(), float(F[i])
+        X, F, _ = keep_better(X, F, new, f_new)  # each sparrow keeps its best position (the reference code's memory)
+        best, best_f = _best(X, F, best, best_f)
         history.append(best_f)
     return SwarmResult(best, best_f, history)
 

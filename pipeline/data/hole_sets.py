@@ -12,6 +12,7 @@ import os
 import shutil
 import tempfile
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import pandas as pd
@@ -19,6 +20,7 @@ import torch
 
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.core.io import file_md5, write_json, write_parquet
+from pipeline.core.settings import rule
 from pipeline.data.holes import HoleSampling, in_face_window, sample_holes, sample_joints
 from pipeline.data.tables import POSE_COLUMNS, check_table, holes_frame, joints_frame
 from pipeline.geometry.collision import SAFETY_KINDS, SafetyModel
@@ -26,25 +28,64 @@ from pipeline.geometry.collision import SAFETY_KINDS, SafetyModel
 REBUILD = "rebuild it with `python -m pipeline.generate` (or `dvc repro generate`)"
 
 
+@dataclass(frozen=True)
+class SupervisedSet:
+    """One Omega_sup table: ``size`` joint vectors drawn with ``seed`` within the working box;
+    ``labels``: the sampled joints (paper 000) or ``home_branch`` (each pose's solution that a local
+    search from the home pose reaches); ``window``: keep only face-like samples (mismatch study)."""
+
+    size: int = field(metadata=rule(ge=1))
+    seed: int = field(metadata=rule(ge=0))
+    labels: str = field(default="sampled", metadata=rule(choices=("sampled", "home_branch")))
+    window: bool = False
+
+
+Relabel = Callable[[torch.Tensor], tuple[torch.Tensor, float]]
+
+
+def supervised_table(safety: SafetyModel, spec: SupervisedSet, box: Mapping | None,
+                     relabel: Relabel | None) -> tuple[pd.DataFrame, dict]:
+    """Joints and their poses (by forward kinematics), and the set's statistics for ``meta.json``."""
+    boom = safety.boom
+    q = (sample_joints_in_window(spec.size, safety, spec.seed, box) if spec.window
+         else sample_joints(spec.size, boom, spec.seed, box))
+    relabelled = None
+    if spec.labels == "home_branch":  # same poses, other (branch-consistent) joints
+        if relabel is None:
+            raise ConfigError("holes.sup.labels = 'home_branch' needs a relabelling function")
+        q, relabelled = relabel(q)
+    frames = boom.frames(q)
+    pose = boom.pose6_from_frames(frames)
+    df = pd.concat([joints_frame(q, boom.joint_names), holes_frame(pose)], axis=1)
+    violated = safety.violations(safety.clearances_from_frames(frames))
+    any_violation = torch.stack([violated[k] for k in SAFETY_KINDS]).any(dim=0)
+    stats = {
+        "size": spec.size, "seed": spec.seed, "labels": spec.labels, "window": spec.window,
+        "face_window_share": float(in_face_window(pose, safety.tunnel).double().mean()),
+        "relabelled_share": relabelled,
+        "violation_share": {**{k: float(violated[k].double().mean()) for k in SAFETY_KINDS},
+                            "any": float(any_violation.double().mean())},
+    }
+    return df[["hole_id", *boom.joint_names, *POSE_COLUMNS]], stats
+
+
 def build_hole_sets(
     safety: SafetyModel,
     sampling: HoleSampling,
     unsup_size: int,
     unsup_seed: int,
-    sup_size: int,
-    sup_seed: int,
     test_size: int,
     test_seeds: list[int],
+    sup_sets: Mapping[str, SupervisedSet],
     sup_box: Mapping | None = None,
-    relabel: Callable[[torch.Tensor], tuple[torch.Tensor, float]] | None = None,
-    sup_window: bool = False,
+    relabel: Relabel | None = None,
 ) -> tuple[dict[str, pd.DataFrame], dict]:
-    """All hole tables by file name, and the statistics that go into ``meta.json``. Omega_sup's
-    joints are uniform in ``sup_box`` (the working box; None: the full mechanical ranges); its
-    labels are the sampled joints, or ``relabel(q) -> (labels, share relabelled)`` of them."""
-    seeds = [unsup_seed, sup_seed, *test_seeds]
+    """All hole tables by file name, and the statistics that go into ``meta.json``: Omega_unsup,
+    the test groups, and one Omega_sup table per entry of ``sup_sets`` (``sup`` is paper 000's),
+    drawn in ``sup_box`` (the working box; None: the full mechanical ranges)."""
+    seeds = [unsup_seed, *(spec.seed for spec in sup_sets.values()), *test_seeds]
     if len(set(seeds)) != len(seeds):
-        raise ConfigError(f"holes: seeds must all differ (unsup, sup, test...), got {seeds}")
+        raise ConfigError(f"holes: seeds must all differ (unsup, sup sets, test...), got {seeds}")
     tables: dict[str, pd.DataFrame] = {}
     train, train_stats = sample_holes(unsup_size, safety, sampling, unsup_seed)
     tables["train.parquet"] = holes_frame(train)
@@ -53,32 +94,16 @@ def build_hole_sets(
         poses, stats = sample_holes(test_size, safety, sampling, seed)
         tables[f"test_group_{k}.parquet"] = holes_frame(poses)
         test_stats.append(stats)
-    boom = safety.boom
-    if sup_window:  # the mismatch study's middle row: keep only samples whose pose is face-like
-        q = sample_joints_in_window(sup_size, safety, sup_seed, sup_box)
-    else:
-        q = sample_joints(sup_size, boom, sup_seed, sup_box)
-    relabelled = None
-    if relabel is not None:  # same poses, other (branch-consistent) joints
-        q, relabelled = relabel(q)
-    frames = boom.frames(q)
-    sup_pose = boom.pose6_from_frames(frames)
-    sup = pd.concat([joints_frame(q, boom.joint_names), holes_frame(sup_pose)], axis=1)
-    tables["sup.parquet"] = sup[["hole_id", *boom.joint_names, *POSE_COLUMNS]]
-    violated = safety.violations(safety.clearances_from_frames(frames))
-    any_violation = torch.stack([violated[k] for k in SAFETY_KINDS]).any(dim=0)
+    sup_stats = {}
+    for name, spec in sup_sets.items():
+        tables[f"{name}.parquet"], sup_stats[name] = supervised_table(safety, spec, sup_box, relabel)
     meta = {
         "counts": {name: len(df) for name, df in tables.items()},
-        "seeds": {"unsup": unsup_seed, "sup": sup_seed, "test": list(test_seeds)},
+        "seeds": {"unsup": unsup_seed, "sup": {n: spec.seed for n, spec in sup_sets.items()}, "test": list(test_seeds)},
         "unsup_rejection": train_stats,
         "test_rejection": test_stats,
-        "sup_face_window_share": float(in_face_window(sup_pose, safety.tunnel).double().mean()),
         "sup_box": None if sup_box is None else {k: list(v) for k, v in sup_box.items()},
-        "sup_relabelled_share": relabelled,
-        "sup_violation_share": {
-            **{k: float(violated[k].double().mean()) for k in SAFETY_KINDS},
-            "any": float(any_violation.double().mean()),
-        },
+        "sup_sets": sup_stats,
     }
     return tables, meta
 

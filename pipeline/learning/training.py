@@ -74,6 +74,7 @@ class MethodSettings:
     mu: float = field(metadata=rule(ge=0))
     pose_loss: str = field(metadata=rule(choices=POSE_LOSSES))
     train_safety: dict = field(default_factory=dict)
+    sup_set: str = "sup"  # supervised methods: which Omega_sup table of the hole set (sup, or a holes.sup_variants key)
 
     @classmethod
     def from_config(cls, node: Mapping, where: str = "method") -> MethodSettings:
@@ -142,11 +143,11 @@ class TrainingData:
 
 
 def load_training_data(holes_dir: Path, boom: Boom, safety: SafetyModel, sampling: HoleSampling,
-                       supervised: bool, val_size: int, val_seed: int) -> TrainingData:
-    """Omega_sup (poses and joints, both checked finite) or Omega_unsup, read once and verified
-    against ``meta.json``; held-out holes drawn like Omega_unsup with their own seed."""
+                       supervised: bool, val_size: int, val_seed: int, sup_set: str = "sup") -> TrainingData:
+    """Omega_sup (``<sup_set>.parquet``: poses and joints, both checked finite) or Omega_unsup, read
+    once and verified against ``meta.json``; held-out holes drawn like Omega_unsup with their own seed."""
     if supervised:
-        name = "sup.parquet"
+        name = f"{sup_set}.parquet"
         df = read_hole_table(holes_dir, name, [*POSE_COLUMNS, *boom.joint_names])
         pose = torch.tensor(df[POSE_COLUMNS].to_numpy(dtype="float64"))
         q = torch.tensor(df[boom.joint_names].to_numpy(dtype="float64"))
