@@ -134,3 +134,34 @@ def test_full_turn_joints_wrap_instead_of_stopping(safety):
     out = solver.project(x)
     assert out[0, 3] == pytest.approx(-math.pi + 0.1) and out[0, 6] == pytest.approx(math.pi - 0.2)
     assert out[0, 0] == 0.0 and solver.project(torch.tensor([[2.0, 0, 9, 0, 0, 0, 0, 9]]).double())[0, 2] == 4.6
+
+
+class Given(Solver):
+    """A stand-in for the network that answers hole ``i`` with row ``i`` of ``q``."""
+
+    def __init__(self, boom, q):
+        super().__init__(boom)
+        self.q = q
+
+    def _solve(self, targets):
+        return self.q[: len(targets)].clone(), torch.ones(len(targets), dtype=torch.long)
+
+
+def test_float32_targets_converge_instead_of_running_out_of_iterations(safety):
+    """A float32 pose puts the preview point a rounding error (~1e-7 m) off the boom's preview depth:
+    no joints reach it exactly, so refining it as given stalls at that residual for the whole
+    budget. The solver refines the nearest reachable pose and reports errors against the pose given."""
+    boom = safety.boom
+    pose, _ = sample_holes(30, safety, HoleSampling(), seed=33)
+    exact = HybridSolver(boom, safety, None).solve(HoleTargets(pose, boom.preview_depth))
+    solved = torch.tensor([s == "ok" for s in exact.status])
+    assert solved.sum() >= 25
+    start = exact.q[solved] + 0.01 * torch.randn(int(solved.sum()), 8, generator=torch.Generator().manual_seed(3),
+                                                 dtype=torch.float64)
+    settings = HybridSettings()
+    res = HybridSolver(boom, safety, Given(boom, start), settings).solve(
+        HoleTargets(pose[solved].float(), boom.preview_depth))
+    assert res.status == ["ok"] * int(solved.sum())
+    assert int(res.iterations.max()) < settings.max_iters  # converged, every hole
+    table = solution_table(pose[solved].float().double(), res.q, safety)  # errors against the float32 pose
+    assert torch.allclose(torch.as_tensor(table["hole_mm"].to_numpy()), res.errors["hole"] * 1000, atol=1e-6)

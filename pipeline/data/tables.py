@@ -37,9 +37,11 @@ def check_table(df: pd.DataFrame, columns: Sequence[str], source: str) -> None:
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:
             row = int(bad[0])
+            value = df[col].iloc[row]
+            value = value.item() if isinstance(value, np.generic) else value  # nan, not np.float64(nan)
             raise InputError(
                 f"{source}: column '{col}' has {bad.size} non-finite or non-numeric value(s), "
-                f"first at row {row} (value {df[col].iloc[row]!r})"
+                f"first at row {row} (value {value!r})"
             )
 
 

@@ -49,7 +49,9 @@ class HybridSettings:
     tol_mm: float = field(default=0.01, metadata=rule(gt=0))  # exact: hole-seeking error at most this
     reach_tol_mm: float = field(default=1.0, metadata=rule(gt=0))  # beyond it, a hole is unreachable
     max_iters: int = field(default=12, metadata=rule(ge=1))  # LM iterations per start
-    damping: float = field(default=1e-3, metadata=rule(gt=0))
+    # initial Marquardt damping: small, so a start near a solution takes Gauss-Newton steps (2 from a
+    # network answer); it grows tenfold on every rejected step, so far starts stay safe
+    damping: float = field(default=1e-5, metadata=rule(gt=0))
     margin: float = field(default=0.002, metadata=rule(ge=0))  # m kept beyond each safety distance
     guard: float = field(default=0.1, metadata=rule(gt=0))  # m: clearances this far above are not re-measured each step
     clearance_weight: float = field(default=1.0, metadata=rule(gt=0))
@@ -158,9 +160,11 @@ class HybridSolver(Solver):
         return r, J, hole, c, fresh
 
     def refine(self, q0: torch.Tensor, target: torch.Tensor, use_safety: bool,
-               max_iters: int | None = None) -> Candidates:
+               max_iters: int | None = None, owner: torch.Tensor | None = None) -> Candidates:
         """Levenberg-Marquardt from ``q0 (N, n_joints)`` towards ``target (N, 6)``; each start stops
         on its own once exact (and, with ``use_safety``, clear), so the batch shrinks as it goes.
+        ``owner (N,)``: which hole each start serves; once one start of a hole is done, the hole's
+        other starts stop where they are (one ok answer is what a hole needs).
         The returned clearances are measured at the returned joints, always."""
         s = self.s
         max_iters = s.max_iters if max_iters is None else max_iters
@@ -180,8 +184,17 @@ class HybridSolver(Solver):
         eye = torch.eye(n, dtype=torch.float64)
         for it in range(max_iters + 1):
             done = (hole <= stop_tol) & ((c >= 0).all(-1) if use_safety else True)
+            if use_safety and (done & ~fresh).any():  # exact on clearances measured earlier: measure them here,
+                rows = (done & ~fresh).nonzero().flatten()  # with their rows, so a start found unclear goes on
+                r[rows], J[rows], hole[rows], c[rows], fresh[rows] = self._rows(x[rows], tgt[rows], start[:len(rows)])
+                cost[rows] = (r[rows] * r[rows]).sum(-1)
+                done = (hole <= stop_tol) & (c >= 0).all(-1)
             if done.any() or it == max_iters:
                 fin = done if it < max_iters else torch.ones_like(done)
+                if owner is not None and it < max_iters:  # the siblings of a start that is done stop too
+                    served = torch.zeros(int(owner.max()) + 1, dtype=torch.bool)
+                    served[owner[idx[done]]] = True
+                    fin = fin | served[owner[idx]]
                 x_out[idx[fin]], r_out[idx[fin]] = x[fin], r[fin, :6]
                 c_out[idx[fin]], measured_out[idx[fin]] = c[fin], fresh[fin]
                 keep = ~fin
@@ -261,41 +274,59 @@ class HybridSolver(Solver):
         H, K, n = starts.shape
         if H == 0 or K == 0:
             return
-        new = self.refine(starts.reshape(H * K, n), pose[todo].repeat_interleave(K, dim=0), use_safety, max_iters)
+        new = self.refine(starts.reshape(H * K, n), pose[todo].repeat_interleave(K, dim=0), use_safety, max_iters,
+                          owner=torch.arange(H).repeat_interleave(K))
         chosen, chosen_status = self.best_of(Candidates.per_hole([best.take(todo), new], H), H, reference[todo])
         best.put(todo, chosen)
         status[todo] = chosen_status
 
     # ------------------------------------------------------------------ the solve
+    def consistent(self, pose: torch.Tensor) -> torch.Tensor:
+        """The targets with each preview point at exactly the boom's preview depth from its collar,
+        along the hole: the only poses the chain can reach exactly. A target whose two points are
+        off by rounding (float32 input, a plan written to the millimetre) would otherwise leave a
+        residual that no step removes, and every hole would run to ``max_iters``."""
+        collar, axis = pose[:, :3], pose[:, 3:] - pose[:, :3]
+        length = axis.norm(dim=-1, keepdim=True)
+        preview = collar + self.boom.preview_depth * axis / length.clamp_min(1e-12)
+        return torch.cat([collar, torch.where(length > 1e-9, preview, pose[:, 3:])], dim=-1)
+
     def solve(self, targets: Targets) -> SolveResult:
-        """First the network's answers; for the holes not ok: perturbed starts; for those still not ok:
-        random starts, then many random starts with a longer budget, and finally the network's answer
-        and random starts without the safety rows (can the pose be reached at all?). Each stage sees
-        only the holes the previous ones left, so the batch pays for the hard holes alone."""
+        """First the network's answers, refined on the pose alone: a hole whose answer is then exact
+        and clear by at least ``margin`` is done (most holes: one clearance evaluation each). The
+        others are refined from the network's answer with the safety rows; for those still not ok:
+        perturbed starts, random starts, many random starts with a longer budget, and finally random
+        starts without the safety rows (can the pose be reached at all?). Each stage sees only the
+        holes the previous ones left, so the batch pays for the hard holes alone."""
         if not isinstance(targets, HoleTargets):
             raise InputError(f"{self.name}: solves holes (HoleTargets), got {type(targets).__name__}")
         if len(targets) == 0:
             raise InputError(f"{self.name}: no targets to solve")
         start = time.perf_counter()
-        with torch.no_grad():
+        with torch.inference_mode():  # no autograd bookkeeping: a fifth of a single hole's time
             pose = targets.pose.double()
+            target = self.consistent(pose)
             q_net = (self.init.joints(targets) if self.init is not None
                      else self.space.full((0.5 * (self.space.lower + self.space.upper)).expand(len(pose), -1)))
-            best = self.refine(q_net, pose, use_safety=True)
+            best = self.refine(q_net, target, use_safety=False)
             status, _ = self.rank(best)
-            todo = (status != 0).nonzero().flatten()
-            self._try(best, status, todo, self.starts(q_net[todo], "perturbed"), pose, q_net, use_safety=True)
+            spare = best.clearances.min(dim=-1).values >= self.s.margin
+            todo = ((status != 0) | ~spare).nonzero().flatten()
+            self._try(best, status, todo, q_net[todo].unsqueeze(1), target, q_net, use_safety=True)
             todo = (status != 0).nonzero().flatten()
             if len(todo):
-                self._try(best, status, todo, self.starts(q_net[todo], "random"), pose, q_net, use_safety=True)
+                self._try(best, status, todo, self.starts(q_net[todo], "perturbed"), target, q_net, use_safety=True)
                 todo = (status != 0).nonzero().flatten()
-                self._try(best, status, todo, self.starts(q_net[todo], "deep"), pose, q_net, use_safety=True,
+                self._try(best, status, todo, self.starts(q_net[todo], "random"), target, q_net, use_safety=True)
+                todo = (status != 0).nonzero().flatten()
+                self._try(best, status, todo, self.starts(q_net[todo], "deep"), target, q_net, use_safety=True,
                           max_iters=self.s.deep_iters)
                 todo = (status != 0).nonzero().flatten()
-                free_starts = torch.cat([q_net[todo].unsqueeze(1), self.starts(q_net[todo], "random")], dim=1)
-                self._try(best, status, todo, free_starts, pose, q_net, use_safety=False)
+                self._try(best, status, todo, self.starts(q_net[todo], "random"), target, q_net, use_safety=False)
         wall = time.perf_counter() - start
-        err = pose_errors(pose + best.residual, pose)
+        best = best.map(torch.clone)  # ordinary tensors again: callers may use them with autograd
+        target, pose = target.clone(), pose.clone()
+        err = pose_errors(target + best.residual, pose)  # the reached pose against the target as given
         errors = {"position": err["start"], "orientation": err["direction"], "preview": err["preview"],
                   "hole": err["hole"]}
         clearances = {k: best.clearances[:, i] for i, k in enumerate(SAFETY_KINDS)}
