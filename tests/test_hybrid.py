@@ -69,14 +69,16 @@ def test_tunnel_surface_gradients_equal_autograd():
 
 # ------------------------------------------------------------------ solving
 class Fixed(Solver):
-    """A stand-in for the network that answers every hole with the same joints."""
+    """A stand-in for the network: answers every hole with the one row of ``q``, or hole ``i`` with
+    row ``i`` when ``q`` has a row per hole."""
 
     def __init__(self, boom, q):
         super().__init__(boom)
         self.q = q
 
     def _solve(self, targets):
-        return self.q.expand(len(targets), -1).clone(), torch.ones(len(targets), dtype=torch.long)
+        q = self.q.expand(len(targets), -1) if len(self.q) == 1 else self.q[: len(targets)]
+        return q.clone(), torch.ones(len(targets), dtype=torch.long)
 
 
 def test_from_a_deliberately_bad_start_it_ends_exact_and_clear(safety):
@@ -136,17 +138,6 @@ def test_full_turn_joints_wrap_instead_of_stopping(safety):
     assert out[0, 0] == 0.0 and solver.project(torch.tensor([[2.0, 0, 9, 0, 0, 0, 0, 9]]).double())[0, 2] == 4.6
 
 
-class Given(Solver):
-    """A stand-in for the network that answers hole ``i`` with row ``i`` of ``q``."""
-
-    def __init__(self, boom, q):
-        super().__init__(boom)
-        self.q = q
-
-    def _solve(self, targets):
-        return self.q[: len(targets)].clone(), torch.ones(len(targets), dtype=torch.long)
-
-
 def test_float32_targets_converge_instead_of_running_out_of_iterations(safety):
     """A float32 pose puts the preview point a rounding error (~1e-7 m) off the boom's preview depth:
     no joints reach it exactly, so refining it as given stalls at that residual for the whole
@@ -159,7 +150,7 @@ def test_float32_targets_converge_instead_of_running_out_of_iterations(safety):
     start = exact.q[solved] + 0.01 * torch.randn(int(solved.sum()), 8, generator=torch.Generator().manual_seed(3),
                                                  dtype=torch.float64)
     settings = HybridSettings()
-    res = HybridSolver(boom, safety, Given(boom, start), settings).solve(
+    res = HybridSolver(boom, safety, Fixed(boom, start), settings).solve(
         HoleTargets(pose[solved].float(), boom.preview_depth))
     assert res.status == ["ok"] * int(solved.sum())
     assert int(res.iterations.max()) < settings.max_iters  # converged, every hole
