@@ -4,22 +4,15 @@
     python -m pipeline.benchmark benchmark.groups=[1] benchmark.holes=100 'benchmark.methods=[cuikm,nm,hybrid]'
 
 The slow population methods (a solver entry's ``max_holes``) solve the first holes only; the
-``holes`` column says how many each method solved.
+``holes`` column says how many each method solved. The hybrid runs with the ``solver`` group.
 
 Writes ``paths.data/benchmark/results.{csv,json,md}`` and ``figures/error_vs_time.png`` and logs
-them to MLflow (run ``benchmark``). Times are wall clock on this machine with
-``benchmark.threads`` torch threads; networks run on the CPU like the rest, for a fair race.
+them to MLflow (run ``benchmark``). The harness: :mod:`pipeline.evaluation.benchmarking`.
 """
 
 from __future__ import annotations
 
-import logging
-import math
 import platform
-import statistics
-import time
-from collections import Counter
-from dataclasses import dataclass, field
 
 import hydra
 import pandas as pd
@@ -29,137 +22,36 @@ from omegaconf import DictConfig, OmegaConf
 from pipeline.core.build import build_safety
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import configure_process
-from pipeline.core.errors import ConfigError
-from pipeline.core.io import save_figure, write_csv, write_json, write_text
-from pipeline.core.settings import parse, rule
-from pipeline.data.hole_sets import read_hole_poses
+from pipeline.core.settings import RuntimeSettings, parse
 from pipeline.data.holes import joint_box
-from pipeline.evaluation.markdown import markdown_table
-from pipeline.evaluation.metrics import solution_table, summarize
+from pipeline.evaluation.benchmarking import (
+    BenchmarkSettings,
+    benchmark_all,
+    build_solvers,
+    load_holes,
+    write_results,
+)
 from pipeline.evaluation.plots import error_vs_time
-from pipeline.evaluation.status_reference import status_agreement
-from pipeline.solvers import HoleTargets, Solver, SolveResult, build_solver
+from pipeline.solvers.hybrid import HybridSettings
 from pipeline.tracking.runs import TrackingSettings, stage_run
-
-log = logging.getLogger(__name__)
-
-COLUMNS = ["method", "holes", "hole_mm_mean", "hole_mm_p95", "hole_mm_max", "solved_1mm_share",
-           "collision_rate_paper", "any_violation_share", "ok_share", "batch_ms_per_hole", "holes_per_s",
-           "single_ms_per_hole", "iterations_mean", "setup_s"]
-OK_MM = 0.01  # "ok" for every method alike: hole-seeking error <= 0.01 mm and no safety violation
-
-
-@dataclass(frozen=True)
-class BenchmarkSettings:
-    """The ``benchmark`` group's scalar settings (solvers are checked by ``build_solver``)."""
-
-    groups: list[int] = field(metadata=rule(ge=1))
-    holes: int = field(metadata=rule(ge=1))  # per group
-    single: int = field(default=5, metadata=rule(ge=0))
-    threads: int = field(default=2, metadata=rule(ge=1))
-    methods: list[str] = field(default_factory=list)
-    reference_ok_sample: int = field(default=200, metadata=rule(ge=0))  # hybrid statuses vs a slow search
-
-
-def load_holes(holes_dir, groups: list[int], n: int) -> torch.Tensor:
-    """The first ``n`` holes of each test group, in group order."""
-    poses = []
-    for group in groups:
-        _, pose = read_hole_poses(holes_dir, f"test_group_{group}.parquet")
-        if not 1 <= n <= len(pose):
-            raise ConfigError(f"benchmark.holes = {n}: test group {group} has {len(pose)} holes")
-        poses.append(pose[:n].double())
-    return torch.cat(poses)
-
-
-def measure(solver: Solver, pose: torch.Tensor, depth: float, safety, single: int) -> tuple[dict, SolveResult]:
-    """A batched solve of every hole (repeated up to 1 s for fast solvers, median time), then
-    ``single`` holes one at a time (median latency)."""
-    targets = HoleTargets(pose, depth)
-    solver.solve(targets.subset([0]))  # warm-up: lazy setup (RBF fit, first kernels) is not timed
-    result = solver.solve(targets)
-    batch_s = [result.wall_s]
-    while sum(batch_s) < 1.0 and len(batch_s) < 20:  # fast solvers: median of repeats, not one noisy sample
-        batch_s.append(solver.solve(targets).wall_s)
-    latencies = [solver.solve(targets.subset([i])).wall_s for i in range(min(single, len(targets)))]
-    table = solution_table(pose, result.q, safety)
-    row = summarize(table)
-    batch = statistics.median(batch_s)
-    return {
-        "holes": len(targets),
-        **{k: row[k] for k in ("hole_mm_mean", "hole_mm_p95", "hole_mm_max", "solved_1mm_share",
-                               "collision_rate_paper", "any_violation_share")},
-        "ok_share": float(((table["hole_mm"] <= OK_MM) & ~table["any_violation"]).mean()),
-        "batch_ms_per_hole": 1000 * batch / len(targets), "holes_per_s": len(targets) / batch,
-        "single_ms_per_hole": 1000 * statistics.median(latencies) if latencies else float("nan"),
-        "iterations_mean": float(result.iterations.double().mean()),
-    }, result
-
-
-def markdown(df: pd.DataFrame) -> str:
-    fmt = df.copy()
-    for col in ["hole_mm_mean", "hole_mm_p95", "hole_mm_max"]:
-        fmt[col] = fmt[col].map(lambda v: f"{v:.3g}" if v < 100 else f"{v:.0f}")
-    for col in ["solved_1mm_share", "collision_rate_paper", "any_violation_share", "ok_share"]:
-        fmt[col] = (100 * fmt[col]).map(lambda v: f"{v:.1f} %")
-    for col in ["batch_ms_per_hole", "single_ms_per_hole"]:
-        fmt[col] = fmt[col].map(lambda v: f"{v:.3g}")
-    fmt["holes_per_s"] = fmt["holes_per_s"].map(lambda v: f"{v:,.0f}")
-    fmt["iterations_mean"] = fmt["iterations_mean"].map(lambda v: f"{v:.1f}")
-    fmt["setup_s"] = fmt["setup_s"].map(lambda v: f"{v:.1f}")
-    return markdown_table(fmt)
-
-
-def build_solvers(methods: list[str], specs: dict, safety, models_dir,
-                  start_box=None) -> dict[str, tuple[Solver, float, int | None]]:
-    """Every solver built (networks loaded, RBF fitted) before the first solve: fail early. Each
-    comes with its setup time and its ``max_holes`` (None: every hole)."""
-    unknown = [m for m in methods if m not in specs]
-    if unknown:
-        raise ConfigError(f"benchmark.methods: {unknown} have no entry under benchmark.solvers ({sorted(specs)})")
-    solvers = {}
-    for m in methods:
-        spec = dict(specs[m])
-        cap = spec.pop("max_holes", None)
-        if cap is not None and (isinstance(cap, bool) or not isinstance(cap, int) or cap < 1):
-            raise ConfigError(f"benchmark.solvers.{m}.max_holes = {cap!r}: expected a positive integer or null")
-        start = time.perf_counter()
-        solver = build_solver(m, spec, safety.boom, models_dir, specs, safety, start_box)
-        if hasattr(solver, "fit"):
-            solver.fit()
-        solvers[m] = (solver, time.perf_counter() - start, cap)
-    return solvers
 
 
 def run(cfg: DictConfig) -> pd.DataFrame:
-    settings = parse(BenchmarkSettings, cfg.benchmark, "benchmark")
-    tracking = TrackingSettings.from_config(cfg.tracking)
+    settings = parse(BenchmarkSettings, OmegaConf.to_container(cfg.benchmark, resolve=True), "benchmark")
+    hybrid, tracking = parse(HybridSettings, cfg.solver, "solver"), TrackingSettings.from_config(cfg.tracking)
     data, out = project_path(cfg.paths.data), project_path(cfg.paths.data) / "benchmark"
     safety = build_safety(cfg.boom, cfg.tunnel, cfg.safety)
     pose = load_holes(data / "holes", settings.groups, settings.holes)
     box = cfg.holes.sup.get("box")
-    solvers = build_solvers(settings.methods, OmegaConf.to_container(cfg.benchmark.solvers, resolve=True),
-                            safety, data / "models", joint_box(safety.boom, None if box is None else as_dict(box)))
+    solvers = build_solvers(settings.methods, settings.solvers, safety, data / "models",
+                            joint_box(safety.boom, None if box is None else as_dict(box)), hybrid)
     machine = {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
                "torch": torch.__version__, "threads": torch.get_num_threads(), "groups": settings.groups,
                "holes_per_group": settings.holes}
     with stage_run(tracking, "benchmark", {"stage": "benchmark"}) as mlrun:
-        mlrun.log_params({"benchmark": OmegaConf.to_container(cfg.benchmark, resolve=True), "machine": machine})
-        rows, references = [], {}
-        for m, (solver, setup_s, cap) in solvers.items():
-            row, result = measure(solver, pose[:cap], safety.boom.preview_depth, safety, settings.single)
-            rows.append({"method": m, **row, "setup_s": setup_s})
-            mlrun.log_metrics(row, prefix=f"{m}.")
-            if result.status is not None and settings.reference_ok_sample:
-                references[m] = {"statuses": dict(Counter(result.status)), **status_agreement(
-                    solver, pose[:cap], result.status, settings.reference_ok_sample)}
-                mlrun.log_metrics({k: v for k, v in references[m].items() if isinstance(v, (int, float))},
-                                  prefix=f"{m}.reference.")
-            log.info("%-10s %d holes: mean %.4g mm, p95 %.4g mm, ok %.2f %%, collisions %.2f %%, %.4g ms/hole "
-                     "batched, %.3g ms single", m, row["holes"], row["hole_mm_mean"], row["hole_mm_p95"],
-                     100 * row["ok_share"], 100 * row["collision_rate_paper"], row["batch_ms_per_hole"],
-                     row["single_ms_per_hole"])
-        df = pd.DataFrame(rows, columns=COLUMNS)
+        mlrun.log_params({"benchmark": OmegaConf.to_container(cfg.benchmark, resolve=True),
+                          "solver": as_dict(cfg.solver), "machine": machine})
+        df, references = benchmark_all(solvers, pose, safety, settings, mlrun)
         write_results(df, machine, out, references)
         mlrun.log_table(df, "tables/benchmark.json")
         mlrun.log_figure(error_vs_time(df), "figures/error_vs_time.png")
@@ -167,33 +59,9 @@ def run(cfg: DictConfig) -> pd.DataFrame:
     return df
 
 
-def write_results(df: pd.DataFrame, machine: dict, out, references: dict) -> None:
-    write_csv(df, out / "results.csv")
-    # keyed by method so `dvc metrics show` / `dvc exp show` list one column per method and figure
-    finite = lambda v: v if not isinstance(v, float) or math.isfinite(v) else None  # noqa: E731  NaN: not measured
-    write_json({"machine": machine, "status_reference": references,
-                **{r["method"]: {k: finite(v) for k, v in r.items() if k != "method"} for r in df.to_dict("records")}},
-               out / "results.json")
-    write_text(f"Test groups {machine['groups']}, first {machine['holes_per_group']} holes of each (a method's "
-               f"`holes` column says how many it solved); {machine['processor']}, {machine['threads']} torch threads, "
-               f"torch {machine['torch']}.\n\n" + markdown(df) + reference_markdown(references), out / "results.md")
-    save_figure(error_vs_time(df), out / "figures" / "error_vs_time.png")
-
-
-def reference_markdown(references: dict) -> str:
-    lines = []
-    for m, r in references.items():
-        lines += ["", f"{m}: statuses {r['statuses']}. Reference search (pipeline/evaluation/status_reference.py) on "
-                  f"{r['holes_checked']} holes (every hole not ok, {r['ok_sampled']} ok ones sampled): agreement "
-                  f"{100 * r['agreement']:.1f} %, {r['fast_not_ok_that_reference_solves']} not-ok holes the reference "
-                  f"solves, {r['no_clear_solution_found_by_reference']} with no clear solution found; pairs "
-                  f"(fast->reference) {r['pairs']}.", ""]
-    return "\n".join(lines)
-
-
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    configure_process(cfg.benchmark.threads)
+    configure_process(RuntimeSettings.from_config(cfg).threads)
     run(cfg)
 
 

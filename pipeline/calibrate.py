@@ -36,6 +36,7 @@ from pipeline.core.config import project_path
 from pipeline.core.device import configure_process
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.core.io import save_figure, write_csv, write_text
+from pipeline.core.settings import RuntimeSettings
 from pipeline.data.holes import HoleSampling, sample_holes
 from pipeline.evaluation.plots import calibration_figure
 from pipeline.geometry.collision import SafetyModel
@@ -271,7 +272,7 @@ def run(cfg: DictConfig):
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    configure_process(cfg.calibration.threads)  # one thread: see conf/calibration/default.yaml
+    configure_process(RuntimeSettings.from_config(cfg).calibrate_threads)  # one thread: see conf/runtime/default.yaml
     run(cfg)
 
 

@@ -19,7 +19,7 @@ from pipeline.core.build import build_safety, hole_sampling
 from pipeline.core.config import CONF_DIR
 from pipeline.core.device import configure_process
 from pipeline.core.io import write_text
-from pipeline.core.settings import parse, rule
+from pipeline.core.settings import RuntimeSettings, parse, rule
 from pipeline.learning.supervised_set import derive_working_box
 
 log = logging.getLogger(__name__)
@@ -53,7 +53,7 @@ def run(cfg: DictConfig) -> dict:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    configure_process(cfg.benchmark.threads)
+    configure_process(RuntimeSettings.from_config(cfg).threads)
     run(cfg)
 
 

@@ -24,7 +24,7 @@ from pipeline.core.settings import parse, rule
 from pipeline.data.hole_sets import read_test_groups
 from pipeline.evaluation.metrics import MethodEvaluation, collision_table, evaluate_network, summary_frame
 from pipeline.evaluation.plots import face_projection, method_comparison, training_curves
-from pipeline.learning.models import check_network_fits, load_checkpoint
+from pipeline.learning.network_source import load_network
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
@@ -41,9 +41,8 @@ def run(cfg: DictConfig) -> dict:
     safety = build_safety(cfg.boom, cfg.tunnel, cfg.safety)
     data = project_path(cfg.paths.data)
     groups = read_test_groups(data / "holes")
-    networks = {m: load_checkpoint(data / "models" / f"{m}.pt") for m in settings.methods}  # fail before writing
-    for m, (model, _) in networks.items():
-        check_network_fits(model, safety.boom, str(data / "models" / f"{m}.pt"))
+    # every network loaded and checked before anything is written
+    networks = {m: load_network(data / "models" / f"{m}.pt", safety.boom) for m in settings.methods}
     with stage_run(tracking, "evaluate", {"stage": "evaluate"}) as mlrun:
         mlrun.log_params({"eval": vars(settings), "safety": dict(cfg.safety)})
         for k, (df, _) in groups.items():

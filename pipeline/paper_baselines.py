@@ -17,6 +17,7 @@ from pipeline.core.build import load_boom
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import configure_process
 from pipeline.core.io import write_csv, write_text
+from pipeline.core.settings import RuntimeSettings
 from pipeline.data.hole_sets import read_hole_poses
 from pipeline.data.holes import joint_box
 from pipeline.data.plans import hole_poses, read_csv_plan
@@ -61,7 +62,7 @@ def blast_holes(plan, depth: float) -> torch.Tensor:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    configure_process(cfg.benchmark.threads)
+    configure_process(RuntimeSettings.from_config(cfg).threads)
     run(cfg)
 
 

@@ -10,14 +10,14 @@ solves every hole with the hybrid solver (:mod:`pipeline.solvers.hybrid`), and w
 preview and hole-seeking error (mm), the four clearances (m), ``status`` (ok, inexact, unsafe,
 unreachable; invalid for unreadable rows) and ``method``; plus ``<stem>_solution.png`` (the face by
 status and the boom where it matters) and ``<stem>_solution.json`` (counts and timing). Logs an
-MLflow run. With ``strict=true`` it exits with status 1 unless every hole is ok.
+MLflow run. With ``strict=true`` it exits with status 1 unless every hole is ok. The hybrid's settings
+are the ``solver`` group (conf/solver/hybrid.yaml).
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import asdict, dataclass, field
 
 import hydra
 import numpy as np
@@ -27,58 +27,67 @@ from omegaconf import DictConfig, OmegaConf
 from pipeline.core.build import build_safety, load_boom
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import configure_process
-from pipeline.core.errors import ConfigError
 from pipeline.core.io import require_writable, save_figure, write_csv, write_json
-from pipeline.core.settings import coerce, parse, rule
+from pipeline.core.settings import RuntimeSettings, coerce, parse, rule
 from pipeline.data.holes import joint_box
 from pipeline.data.plans import COLLAR, read_plan
 from pipeline.data.solutions import CLEARANCE_COLUMNS, solution_frame, status_counts
 from pipeline.evaluation.plots import solution_figure
-from pipeline.learning.models import check_network_fits, load_checkpoint
+from pipeline.learning.network_source import load_network
 from pipeline.solvers.base import HoleTargets, NetworkSolver
 from pipeline.solvers.hybrid import HybridSettings, HybridSolver
-from pipeline.tracking.runs import TrackingSettings, load_logged_network, stage_run
+from pipeline.tracking.runs import TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
+class IredesSettings:
+    """``solve.iredes``: how IREDES coordinates map onto the boom base frame (pipeline/data/iredes.py)."""
+
+    axes: str = "xyz"
+    unit: str = "m"
+    origin: tuple[float, ...] = (0.0, 0.0, 0.0)
+    checksum: str = field(default="refuse", metadata=rule(choices=("refuse", "warn", "ignore")))
+
+
+@dataclass(frozen=True)
 class SolveSettings:
-    """The ``solve`` node (the hybrid solver's own settings are parsed apart)."""
+    """The ``solve`` node (the hybrid solver's settings are the ``solver`` group)."""
 
     network: str = "cuikm"
     model_uri: str | None = None
     figure: bool = True
     max_boom_views: int = field(default=6, metadata=rule(ge=0))
-    iredes: dict = field(default_factory=dict)
-    solver: dict = field(default_factory=dict)
+    iredes: IredesSettings = field(default_factory=IredesSettings)
 
 
 def run(cfg: DictConfig) -> dict:
     settings = parse(SolveSettings, cfg.solve, "solve")
-    hybrid = parse(HybridSettings, settings.solver, "solve.solver")
+    hybrid = parse(HybridSettings, cfg.solver, "solver")
     tracking = TrackingSettings.from_config(cfg.tracking)
     plan_path = project_path(coerce(cfg.plan, "str", "plan"))
     out = project_path(cfg.out) if cfg.get("out") else plan_path.with_name(f"{plan_path.stem}_solution.csv")
     strict = coerce(cfg.get("strict", False), "bool", "strict")
     boom = load_solve_boom(cfg.boom, cfg.get("boom_model"))
     safety = build_safety(boom, cfg.tunnel, cfg.safety)
-    network = load_network(settings, project_path(cfg.paths.data) / "models", boom, tracking)
-    plan = read_plan(plan_path, **(iredes_options(settings.iredes) if plan_path.suffix.lower() == ".xml" else {}))
+    source = settings.model_uri or project_path(cfg.paths.data) / "models" / f"{settings.network}.pt"
+    network, _ = load_network(source, boom, tracking.uri, "solve.model_uri")
+    plan = read_plan(plan_path, **(asdict(settings.iredes) if plan_path.suffix.lower() == ".xml" else {}))
     require_writable(out.parent, "out (its folder)")
     for line in plan.report():
         log.warning("skipped: %s", line)
     method = f"hybrid ({settings.model_uri or settings.network})"
     with stage_run(tracking, f"solve-{plan_path.stem}", {"stage": "solve", "plan": str(plan_path)}) as mlrun:
         mlrun.log_params({"plan": str(plan_path), "solve": OmegaConf.to_container(cfg.solve, resolve=True),
-                          "boom_model": str(cfg.get("boom_model"))})
+                          "solver": as_dict(cfg.solver), "boom_model": str(cfg.get("boom_model"))})
         mlrun.log_dataset(plan.holes, plan_path, "drill plan")
         box = cfg.holes.sup.get("box")  # random starts within the working box
         solver = HybridSolver(boom, safety, NetworkSolver(boom, network, settings.network), hybrid, "hybrid",
                               joint_box(boom, None if box is None else as_dict(box)))
         result = solver.solve(HoleTargets(plan.poses(boom.preview_depth), boom.preview_depth))
         table = solution_frame(plan, result, boom.joint_names, method)
-        summary = {"holes": len(plan), "invalid_rows": len(plan.problems), **status_counts(table),
+        summary = {"holes": len(plan), "invalid_rows": invalid_rows(plan), **status_counts(table),
                    "hole_mm_max": float(table["hole_mm"].max()), "solve_s": result.wall_s,
                    "ms_per_hole": 1000 * result.wall_s / len(plan)}
         write_csv(table, out)
@@ -93,7 +102,7 @@ def run(cfg: DictConfig) -> dict:
             mlrun.log_figure(fig, "solution.png")
     log.info("solved %d holes in %.2f s (%.3f ms/hole): %s -> %s", len(plan), result.wall_s, summary["ms_per_hole"],
              status_counts(table), out)
-    if strict and summary["ok"] != len(plan) + len(plan.problems):
+    if strict and summary["ok"] != len(table):
         raise SystemExit(f"strict: {len(table) - summary['ok']} of {len(table)} holes are not ok (see {out})")
     return summary
 
@@ -107,20 +116,9 @@ def load_solve_boom(boom_cfg, boom_model):
     return load_model(project_path(boom_model))
 
 
-def load_network(settings: SolveSettings, models_dir: Path, boom, tracking: TrackingSettings):
-    """The starting network: an MLflow model URI, or ``models_dir/<network>.pt``."""
-    if settings.model_uri:
-        return check_network_fits(load_logged_network(settings.model_uri, tracking), boom, settings.model_uri)
-    path = models_dir / f"{settings.network}.pt"
-    return check_network_fits(load_checkpoint(path)[0], boom, str(path))
-
-
-def iredes_options(node: dict) -> dict:
-    allowed = {"axes", "unit", "origin", "checksum"}
-    unknown = sorted(set(node) - allowed)
-    if unknown:
-        raise ConfigError(f"solve.iredes: unknown setting(s) {unknown}; allowed: {sorted(allowed)}")
-    return {k: tuple(v) if k == "origin" else v for k, v in node.items()}
+def invalid_rows(plan) -> int:
+    """Rows of the plan that were skipped: a row with several bad cells is one row."""
+    return len({p.row for p in plan.problems})
 
 
 def boom_views(table, q: torch.Tensor, safety, limit: int) -> list[dict]:
@@ -145,7 +143,7 @@ def boom_views(table, q: torch.Tensor, safety, limit: int) -> list[dict]:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    configure_process(cfg.benchmark.threads)
+    configure_process(RuntimeSettings.from_config(cfg).threads)
     run(cfg)
 
 

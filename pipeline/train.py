@@ -25,6 +25,7 @@ from pipeline.core.build import build_safety, hole_sampling
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import configure_process, resolve_device
 from pipeline.core.io import publish, require_writable, write_csv, write_json
+from pipeline.core.settings import RuntimeSettings
 from pipeline.geometry.collision import SafetyDistances
 from pipeline.learning.models import IKNet, ModelSettings, build_model, save_checkpoint
 from pipeline.learning.training import (
@@ -46,6 +47,7 @@ def run(cfg: DictConfig) -> dict:
     """Train the configured method; returns the final held-out metrics and the checkpoint path."""
     settings, model_s, tracking = (TrainSettings.from_config(cfg.train), ModelSettings.from_config(cfg.model),
                                    TrackingSettings.from_config(cfg.tracking))
+    runtime = RuntimeSettings.from_config(cfg)
     check_method_key(settings.method_key, OmegaConf.select(cfg, settings.method_key))
     method = MethodSettings.from_config(OmegaConf.select(cfg, settings.method_key), settings.method_key)
     device = resolve_device(cfg.device)
@@ -71,13 +73,13 @@ def run(cfg: DictConfig) -> dict:
         history = fit(model, safety.boom, train_safety, method.objective,
                       training_batches(data, method.objective, settings, safety, sampling, device),
                       settings.steps, settings.lr, data.val_pose.float().to(device), settings.eval_every,
-                      settings.grad_clip, progress=settings.progress, keep_best=settings.keep_best,
+                      settings.grad_clip, progress=runtime.progress, keep_best=settings.keep_best,
                       on_eval=lambda step, rec, elapsed: log_training_progress(
-                          mlrun, step, settings.steps, rec, elapsed, method.name, echo=not settings.progress))
+                          mlrun, step, settings.steps, rec, elapsed, method.name, echo=not runtime.progress))
         model = model.cpu()
         final = final_metrics(model, data.val_pose.float(), safety, history, time.perf_counter() - t0)
         save_outputs(model, history, final, models_dir, method.name, as_dict(cfg.boom), run_cfg, mlrun, tracking,
-                     settings.log_model, data.val_pose[:4].float().numpy())
+                     runtime.log_model, data.val_pose[:4].float().numpy())
     log.info("trained %s in %.0f s: held-out hole-seeking error %.2f mm -> %s",
              method.name, final["train_seconds"], final["val_hole_mm"], models_dir / f"{method.name}.pt")
     return {"checkpoint": str(models_dir / f"{method.name}.pt"), **final}
@@ -108,7 +110,7 @@ def save_outputs(model: IKNet, history: list[dict], final: dict, models_dir: Pat
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> float:
-    configure_process(cfg.train.get("threads"))
+    configure_process(RuntimeSettings.from_config(cfg).train_threads)
     return run(cfg)["val_hole_mm"]
 
 

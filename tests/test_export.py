@@ -12,6 +12,7 @@ from pipeline.core.build import load_boom
 from pipeline.core.config import compose, load_group_file
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.data.holes import HoleSampling, sample_holes
+from pipeline.deploy import formats
 from pipeline.learning.models import build_model, save_checkpoint
 
 TORCH_FORMATS = ["torch_export", "torchscript"]
@@ -55,14 +56,14 @@ def assert_same_joints(run, model, pose):
 @pytest.mark.parametrize("fmt", TORCH_FORMATS)
 def test_torch_exports_give_the_joints_of_eager_torch(exported, holes, fmt, batch):
     out, model, _ = exported
-    assert_same_joints(export.load_runner(fmt, out / f"cuikm{export.FORMATS[fmt]}"), model, holes[:batch])
+    assert_same_joints(formats.load_runner(fmt, out / f"cuikm{formats.FORMATS[fmt]}"), model, holes[:batch])
 
 
 @pytest.mark.parametrize("batch", [1, 1000])
 def test_onnx_gives_the_joints_of_eager_torch(exported, holes, batch):
     pytest.importorskip("onnxruntime")
     out, model, _ = exported
-    assert_same_joints(export.load_runner("onnx", out / "cuikm.onnx"), model, holes[:batch])
+    assert_same_joints(formats.load_runner("onnx", out / "cuikm.onnx"), model, holes[:batch])
 
 
 def test_onnx_file_is_named_and_described(exported):
@@ -92,9 +93,9 @@ def test_manifest_describes_the_files(exported):
     assert manifest["check"]["holes"] == 1000
     assert max(manifest["check"]["max_abs_diff_vs_eager"].values()) <= 1e-5
     # the .pt2 carries the same description, for a rig that gets the file alone
-    extra = {export.META_FILE: ""}
+    extra = {formats.META_FILE: ""}
     torch.export.load(out / "cuikm.pt2", extra_files=extra)
-    assert json.loads(extra[export.META_FILE])["joints"] == joints
+    assert json.loads(extra[formats.META_FILE])["joints"] == joints
 
 
 def test_missing_or_corrupt_model_names_the_file_and_how_to_rebuild_it(tmp_path):
@@ -109,7 +110,7 @@ def test_missing_or_corrupt_model_names_the_file_and_how_to_rebuild_it(tmp_path)
 
 
 def test_onnx_required_without_the_extra_is_a_config_error(tmp_path, monkeypatch):
-    monkeypatch.setattr(export, "missing_onnx_packages", lambda: ["onnxscript"])
+    monkeypatch.setattr(formats, "missing_onnx_packages", lambda: ["onnxscript"])
     with pytest.raises(ConfigError, match=r"export\.onnx = true.*onnxscript.*\[onnx\]"):
         export.run(cfg_for(tmp_path, "export.onnx=true"))
     with pytest.raises(ConfigError, match=r"export\.onnx = 'maybe'"):
@@ -117,9 +118,9 @@ def test_onnx_required_without_the_extra_is_a_config_error(tmp_path, monkeypatch
 
 
 def test_without_the_extra_onnx_is_skipped_with_one_log_line(tmp_path, holes, monkeypatch, caplog):
-    monkeypatch.setattr(export, "missing_onnx_packages", lambda: ["onnx", "onnxruntime"])
+    monkeypatch.setattr(formats, "missing_onnx_packages", lambda: ["onnx", "onnxruntime"])
     save_tiny_network(tmp_path / "data", holes)
-    with caplog.at_level(logging.INFO, logger="pipeline.export"):
+    with caplog.at_level(logging.INFO, logger="pipeline.deploy"):
         manifests = export.run(cfg_for(tmp_path, "export.torchscript=false", "export.check.holes=50"))
     skipped = [r for r in caplog.records if "ONNX export skipped" in r.getMessage()]
     assert len(skipped) == 1 and 'pip install -c constraints.txt -e ".[onnx]"' in skipped[0].getMessage()
@@ -129,7 +130,37 @@ def test_without_the_extra_onnx_is_skipped_with_one_log_line(tmp_path, holes, mo
 
 def test_an_export_that_differs_from_torch_is_refused_and_removed(tmp_path, holes, monkeypatch):
     save_tiny_network(tmp_path / "data", holes)
-    monkeypatch.setattr(export, "max_abs_diff", lambda run, model, pose: 1e-3)
+    monkeypatch.setattr(formats, "max_abs_diff", lambda run, model, pose: 1e-3)
     with pytest.raises(ConfigError, match=r"export\.check\.tolerance = 1e-05: cuikm\.pt2 differs .* by 0\.001"):
         export.run(cfg_for(tmp_path, "export.onnx=false", "export.torchscript=false", "export.check.holes=50"))
     assert list((tmp_path / "data" / "export").iterdir()) == []
+
+
+def test_a_refused_export_leaves_the_previous_one_whole(tmp_path, holes, monkeypatch):
+    """Files are staged and checked before any is published: a failed check must not delete the files the
+    previous manifest names (before: they were written in place, then unlinked, the old manifest kept)."""
+    save_tiny_network(tmp_path / "data", holes)
+    cfg = cfg_for(tmp_path, "export.onnx=false", "export.check.holes=50")
+    export.run(cfg)
+    out = tmp_path / "data" / "export"
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    monkeypatch.setattr(formats, "max_abs_diff", lambda run, model, pose: 1e-3)
+    with pytest.raises(ConfigError, match=r"export\.check\.tolerance"):
+        export.run(cfg)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # nothing staged is left behind either
+    manifest = json.loads((out / "cuikm.manifest.json").read_text())
+    for entry in manifest["files"].values():
+        assert hashlib.sha256((out / entry["file"]).read_bytes()).hexdigest() == entry["sha256"]
+
+
+@pytest.mark.parametrize(("override", "pattern"), [
+    ("export.opset=17", r"export\.opset = 17: must be >= 18"),
+    ("export.check.holes=1", r"export\.check\.holes = 1: must be >= 2"),
+    ("export.check.tolerance=0", r"export\.check\.tolerance = 0\.0: must be > 0"),
+    ("export.methods=[]", r"export\.methods = \[\]: expected at least 1"),
+    ("+export.check.tolerence=1", r"export\.check\.tolerence: unknown setting; did you mean 'tolerance'"),
+    ("export.benchmark.rounds=0", r"export\.benchmark\.rounds = 0: must be >= 1"),
+])
+def test_bad_export_settings_are_named_before_any_work(tmp_path, override, pattern):
+    with pytest.raises(ConfigError, match=pattern):
+        export.run(cfg_for(tmp_path, override))

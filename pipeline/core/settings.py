@@ -2,13 +2,16 @@
 
 A settings class is a frozen dataclass whose fields carry their rules (``field(metadata=rule(gt=0))``);
 :func:`parse` reads a config node into it and names the setting and the value of the first problem:
-``train.lr = 'abc': expected a number``. Stages parse every group they use first thing, so a bad
-value fails before data is loaded, files are written or an MLflow run is created.
+``train.lr = 'abc': expected a number``. A key the class does not know is refused with the closest
+known one (``solver.deep_start: unknown setting; did you mean 'deep_starts'?``), and a field whose type
+is another settings class is parsed as a nested node. Stages parse every group they use first thing, so a
+bad value fails before data is loaded, files are written or an MLflow run is created.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import typing
 from collections.abc import Mapping, Sequence
@@ -18,9 +21,11 @@ from pipeline.core.errors import ConfigError
 
 
 def rule(*, gt: float | None = None, ge: float | None = None, le: float | None = None,
-         choices: Sequence | None = None) -> dict:
-    """Field metadata: bounds (``gt``, ``ge``, ``le``) or allowed ``choices``."""
-    return {"rule": {"gt": gt, "ge": ge, "le": le, "choices": tuple(choices) if choices else None}}
+         choices: Sequence | None = None, min_items: int | None = None) -> dict:
+    """Field metadata: bounds (``gt``, ``ge``, ``le``), allowed ``choices`` (of a value or of each item
+    of a list), and for a list its least length ``min_items``."""
+    return {"rule": {"gt": gt, "ge": ge, "le": le, "choices": tuple(choices) if choices else None,
+                     "min_items": min_items}}
 
 
 def _kind(annotation: str) -> tuple[str, bool]:
@@ -62,8 +67,10 @@ def coerce(value: Any, kind: str, where: str) -> Any:
     return value  # anything else is checked by its own class
 
 
-def check_rule(value: Any, where: str, gt=None, ge=None, le=None, choices=None) -> None:
+def check_rule(value: Any, where: str, gt=None, ge=None, le=None, choices=None, min_items=None) -> None:
     values = value if isinstance(value, (list, tuple)) else [value]
+    if min_items is not None and len(values) < min_items:
+        raise ConfigError(f"{where} = {list(values)!r}: expected at least {min_items} item(s)")
     for v in values:
         if choices is not None and v not in choices:
             raise ConfigError(f"{where} = {v!r}: expected one of {list(choices)}")
@@ -78,18 +85,38 @@ def check_rule(value: Any, where: str, gt=None, ge=None, le=None, choices=None) 
 T = typing.TypeVar("T")
 
 
+def unknown_keys(node: Mapping, known, where: str) -> None:
+    """ConfigError for the first key of ``node`` not in ``known``, with the closest known one."""
+    for key in node:
+        if key not in known:
+            close = difflib.get_close_matches(str(key), list(known), n=1, cutoff=0.6)
+            hint = f"did you mean '{close[0]}'? " if close else ""
+            raise ConfigError(f"{where}.{key}: unknown setting; {hint}known: {sorted(known)}")
+
+
 def parse(cls: type[T], node: Mapping | None, where: str) -> T:
-    """Read the config node ``where`` into the settings dataclass ``cls``, checking each field."""
+    """Read the config node ``where`` into the settings dataclass ``cls``, checking each field and
+    refusing keys ``cls`` does not have."""
     if node is None or not isinstance(node, Mapping):
         raise ConfigError(f"{where}: expected a config group (a mapping), got {node!r}")
+    fields = dataclasses.fields(cls)
+    unknown_keys(node, {f.name for f in fields}, where)
+    try:
+        hints = typing.get_type_hints(cls)
+    except (NameError, TypeError):  # an annotation only a type checker resolves: no nested classes
+        hints = {}
     values = {}
-    for f in dataclasses.fields(cls):
+    for f in fields:
         name = f"{where}.{f.name}"
         if f.name not in node:
             if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
                 raise ConfigError(f"{where}: missing required setting '{f.name}'")
             continue
         value = node[f.name]
+        nested = _settings_class(hints.get(f.name))
+        if nested is not None and value is not None:
+            values[f.name] = parse(nested, value, name)
+            continue
         kind, optional = _kind(f.type if isinstance(f.type, str) else f.type.__name__)
         if value is None:
             if not optional:
@@ -100,3 +127,27 @@ def parse(cls: type[T], node: Mapping | None, where: str) -> T:
         check_rule(value, name, **f.metadata.get("rule", {}))
         values[f.name] = value
     return cls(**values)
+
+
+def _settings_class(hint) -> type | None:
+    """The dataclass of a field typed ``SomeSettings`` or ``SomeSettings | None``, else None."""
+    if dataclasses.is_dataclass(hint):
+        return hint
+    args = [a for a in typing.get_args(hint) if a is not type(None)]
+    return args[0] if len(args) == 1 and dataclasses.is_dataclass(args[0]) else None
+
+
+@dataclasses.dataclass(frozen=True)
+class RuntimeSettings:
+    """The ``runtime`` group: how stages run here, never what they compute (conf/runtime/default.yaml)."""
+
+    threads: int | None = dataclasses.field(default=2, metadata=rule(ge=1))  # benchmark, solve, paper_baselines, ...
+    train_threads: int | None = dataclasses.field(default=None, metadata=rule(ge=1))
+    calibrate_threads: int | None = dataclasses.field(default=1, metadata=rule(ge=1))
+    progress: bool = True  # train's tqdm bar
+    log_model: bool = True  # train: the network logged as an MLflow model
+
+    @classmethod
+    def from_config(cls, cfg: Mapping) -> RuntimeSettings:
+        """The ``runtime`` node of a composed config (its defaults where a config has none)."""
+        return parse(cls, cfg.get("runtime") or {}, "runtime")

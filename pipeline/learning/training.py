@@ -43,9 +43,6 @@ class TrainSettings:
     val_size: int = field(default=1000, metadata=rule(ge=1))
     val_seed: int = field(default=999, metadata=rule(ge=0))
     grad_clip: float | None = field(default=None, metadata=rule(gt=0))
-    progress: bool = True
-    threads: int | None = field(default=None, metadata=rule(ge=1))
-    log_model: bool = True
     method_key: str = "method"
     keep_best: bool = True  # end with the weights of the best held-out evaluation, not the last step's
 

@@ -8,7 +8,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from pipeline.core.errors import ConfigError
-from pipeline.core.settings import parse
+from pipeline.core.settings import parse, unknown_keys
 from pipeline.geometry.collision import SafetyModel
 from pipeline.geometry.kinematics import Boom
 from pipeline.solvers.base import FrameTargets, HoleTargets, NetworkSolver, Solver, SolveResult
@@ -31,14 +31,18 @@ def _init_solver(name: str, init, boom: Boom, models_dir: Path, specs: Mapping |
     return build_solver(init, specs[init], boom, models_dir, specs, safety)
 
 
+HYBRID_ENTRY = ("init",)  # a hybrid entry's own keys: its settings are the `solver` group (conf/solver/hybrid.yaml)
+
+
 def build_solver(name: str, spec: Mapping, boom: Boom, models_dir: Path, specs: Mapping | None = None,
-                 safety: SafetyModel | None = None, start_box=None) -> Solver:
+                 safety: SafetyModel | None = None, start_box=None, hybrid: HybridSettings | None = None) -> Solver:
     """A solver from its config entry ``spec`` (``kind`` plus that solver's parameters).
 
     ``kind: network`` loads ``models_dir/<network or name>.pt``; an ``nm`` or ``hybrid`` entry with
     ``init`` starts from another entry of ``specs`` (e.g. a network) instead of the home pose; a
-    ``hybrid`` entry needs the ``safety`` model it keeps, and draws its random starts within
-    ``start_box`` (lower, upper joints; the working box) when given."""
+    ``hybrid`` entry runs with ``hybrid`` (the parsed ``solver`` group; its defaults when None), needs
+    the ``safety`` model it keeps, and draws its random starts within ``start_box`` (lower, upper
+    joints; the working box) when given."""
     spec = dict(spec)
     kind = spec.pop("kind", None)
     if kind not in SOLVER_KINDS:
@@ -47,14 +51,15 @@ def build_solver(name: str, spec: Mapping, boom: Boom, models_dir: Path, specs: 
         if kind == "hybrid":
             if safety is None:
                 raise ConfigError(f"benchmark.solvers.{name}: the hybrid solver needs the safety model")
+            unknown_keys(spec, HYBRID_ENTRY, f"benchmark.solvers.{name} (the hybrid's settings are solver.*)")
             init = _init_solver(name, spec.pop("init", None), boom, models_dir, specs, safety)
-            settings = parse(HybridSettings, spec, f"benchmark.solvers.{name}")
-            return HybridSolver(boom, safety, init, settings, name, start_box)
+            return HybridSolver(boom, safety, init, hybrid or parse(HybridSettings, {}, "solver"), name, start_box)
         if kind == "network":
-            from pipeline.learning.models import check_network_fits, load_checkpoint
+            from pipeline.learning.network_source import load_network
 
+            unknown_keys(spec, ("network",), f"benchmark.solvers.{name}")
             path = Path(models_dir) / f"{spec.pop('network', name)}.pt"
-            return NetworkSolver(boom, check_network_fits(load_checkpoint(path)[0], boom, str(path)), name)
+            return NetworkSolver(boom, load_network(path, boom)[0], name)
         if kind == "nm":
             spec["init"] = _init_solver(name, spec.pop("init", None), boom, models_dir, specs, safety)
             return NMSolver(boom, name=name, **spec)
