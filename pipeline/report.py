@@ -17,6 +17,7 @@ from omegaconf import DictConfig
 from pipeline.core.config import project_path
 from pipeline.core.errors import InputError
 from pipeline.core.io import copy_file, write_text
+from pipeline.evaluation.markdown import markdown_rows
 from pipeline.evaluation.paper_numbers import PAPER000, PAPER000_CUIKM_GAIN, PAPER000_TABLE3
 from pipeline.geometry.collision import SAFETY_KINDS
 from pipeline.tracking.runs import TrackingSettings, stage_run
@@ -28,37 +29,40 @@ def _fmt(value, spec: str = ".2f") -> str:
     return "—" if value is None else format(value, spec)
 
 
+METRIC_HEADER = ["method", "mean hole-seeking error (mm)", "paper", "median", "p95", "max",
+                 "direction error mean (deg)", "collision rate (%)", "paper (%)", "holes with any violation (%)",
+                 "solve time / 1 000 holes (ms)"]
+
+
 def render(metrics: dict, collisions: pd.DataFrame, figures: list[str]) -> str:
     lines = [
         "# IK study report",
         "",
         "Measured on the five test groups (1 000 holes each unless configured otherwise), next to paper 000.",
         "",
-        "| method | mean hole-seeking error (mm) | paper | median | p95 | max | direction error mean (deg) "
-        "| collision rate (%) | paper (%) | holes with any violation (%) | solve time / 1 000 holes (ms) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
+    rows = []
     for m in sorted(metrics, key=lambda m: (list(PAPER000).index(m) if m in PAPER000 else 0.5, m)):
         s, paper = metrics[m], PAPER000.get(m, {})
-        lines.append(
-            f"| {m.upper()} | {s['hole_mm_mean']:.2f} | {_fmt(paper.get('hole_mm_mean'), '.1f')} "
-            f"| {s['hole_mm_median']:.2f} | {s['hole_mm_p95']:.2f} | {s['hole_mm_max']:.1f} "
-            f"| {s['direction_deg_mean']:.3f} | {100 * s['collision_rate_paper']:.2f} "
-            f"| {_fmt(paper.get('collision_rate_pct'))} | {100 * s['any_violation_share']:.2f} "
-            f"| {s['solve_ms_per_1000']:.2f} |"
-        )
+        rows.append([m.upper(), f"{s['hole_mm_mean']:.2f}", _fmt(paper.get("hole_mm_mean"), ".1f"),
+                     f"{s['hole_mm_median']:.2f}", f"{s['hole_mm_p95']:.2f}", f"{s['hole_mm_max']:.1f}",
+                     f"{s['direction_deg_mean']:.3f}", f"{100 * s['collision_rate_paper']:.2f}",
+                     _fmt(paper.get("collision_rate_pct")), f"{100 * s['any_violation_share']:.2f}",
+                     f"{s['solve_ms_per_1000']:.2f}"])
+    lines.append(markdown_rows(METRIC_HEADER, rows).rstrip("\n"))
     if "sikm" in metrics and "cuikm" in metrics:  # paper 000's headline: CUIKM's error reduction over SIKM
         gain = 1 - metrics["cuikm"]["hole_mm_mean"] / metrics["sikm"]["hole_mm_mean"]
         lines += ["", f"CUIKM's mean hole-seeking error is {100 * gain:.2f} % below SIKM's "
                       f"(paper 000: {100 * PAPER000_CUIKM_GAIN:.2f} %)."]
-    lines += ["", "## Collisions per test group (paper 000 Table 3 layout; paper's counts in brackets)", "",
-              "| group | method | " + " | ".join(SAFETY_KINDS) + " |", "|---|---|" + "---|" * len(SAFETY_KINDS)]
+    lines += ["", "## Collisions per test group (paper 000 Table 3 layout; paper's counts in brackets)", ""]
+    rows = []
     for _, row in collisions.iterrows():
         paper = PAPER000_TABLE3.get(row["method"])
         g = int(row["group"])
         ref = paper[g - 1] if paper and 1 <= g <= len(paper) else None
         cells = [f"{int(row[k])} ({ref[i]})" if ref else f"{int(row[k])}" for i, k in enumerate(SAFETY_KINDS)]
-        lines.append(f"| {g} | {row['method'].upper()} | " + " | ".join(cells) + " |")
+        rows.append([g, row["method"].upper(), *cells])
+    lines.append(markdown_rows(["group", "method", *SAFETY_KINDS], rows).rstrip("\n"))
     lines += ["", "## Figures", ""] + [f"![{f}](figures/{f})" for f in figures] + [""]
     return "\n".join(lines)
 

@@ -1,35 +1,80 @@
-"""Every config composes, and every settings group of every experiment passes its checks."""
+"""Every config composes, every settings node every stage reads parses (in every experiment and with every
+option of every group), unknown keys are refused, and every settings class's defaults equal conf/."""
+
+import dataclasses
 
 import pytest
 from omegaconf import OmegaConf
 
-from pipeline.benchmark import BenchmarkSettings
+from pipeline.calibration.study import CalibrationSettings
 from pipeline.core.build import build_safety, hole_sampling
 from pipeline.core.config import CONF_DIR, compose
 from pipeline.core.errors import ConfigError
-from pipeline.core.settings import parse
+from pipeline.core.settings import RuntimeSettings, parse
+from pipeline.data.hole_sets import SupervisedSet
+from pipeline.deploy.package import ExportSettings
+from pipeline.derive_box import DeriveBoxSettings
 from pipeline.evaluate import EvalSettings
+from pipeline.evaluation.benchmarking import BenchmarkSettings
+from pipeline.generate import SetSize, TestGroups, supervised_sets
 from pipeline.learning.models import ModelSettings
 from pipeline.learning.training import MethodSettings, TrainSettings
+from pipeline.solve import SolveSettings
+from pipeline.solvers.hybrid import HybridSettings
 from pipeline.tracking.runs import TrackingSettings
 
 EXPERIMENTS = sorted(p.stem for p in (CONF_DIR / "experiment").glob("*.yaml"))
+METHOD_NODES = ("method", "baselines.sikm", "baselines.uikm", "baselines.sikm_best")
+
+# settings class -> the node it parses (the stage that reads it)
+NODES = {
+    TrainSettings: "train",            # train
+    ModelSettings: "model",            # train, export_benchmark
+    EvalSettings: "eval",              # evaluate
+    BenchmarkSettings: "benchmark",    # benchmark
+    SolveSettings: "solve",            # solve
+    HybridSettings: "solver",          # solve, benchmark (and the round planner)
+    ExportSettings: "export",          # export, export_benchmark
+    CalibrationSettings: "calibration",  # calibrate
+    DeriveBoxSettings: "derive_box",   # derive_box
+    RuntimeSettings: "runtime",        # every stage's main
+    SupervisedSet: "holes.sup",        # generate (less its box)
+}
+
+
+def node(cfg, key: str):
+    value = OmegaConf.to_container(OmegaConf.select(cfg, key), resolve=True)
+    return {k: v for k, v in value.items() if k != "box"} if key == "holes.sup" else value
 
 
 def check_all_groups(cfg) -> None:
-    TrainSettings.from_config(cfg.train)
-    ModelSettings.from_config(cfg.model)
+    """What each stage parses first thing, before it reads data or opens a run."""
+    for cls, key in NODES.items():
+        parse(cls, node(cfg, key), key)
     TrackingSettings.from_config(cfg.tracking)
-    parse(EvalSettings, cfg.eval, "eval")
-    parse(BenchmarkSettings, cfg.benchmark, "benchmark")
-    for key in ("method", "baselines.sikm", "baselines.uikm"):
+    for key in METHOD_NODES:
         MethodSettings.from_config(OmegaConf.select(cfg, key), key)
+    parse(SetSize, cfg.holes.unsup, "holes.unsup")  # generate's sets
+    parse(TestGroups, cfg.holes.test, "holes.test")
+    supervised_sets(cfg.holes)
     build_safety(cfg.boom, cfg.tunnel, cfg.safety)
     hole_sampling(cfg.holes)
 
 
-def test_there_are_experiments():
+def group_options() -> list[str]:
+    """``group=option`` for every option of every config group (nested calibration groups included)."""
+    out = []
+    for folder in sorted(p for p in CONF_DIR.rglob("*") if p.is_dir()):
+        group = folder.relative_to(CONF_DIR).as_posix()
+        if group.startswith(("hydra", "experiment")) or group in ("calibration/level",):
+            continue
+        out += [f"{group}={p.stem}" for p in sorted(folder.glob("*.yaml"))]
+    return out
+
+
+def test_there_are_experiments_and_groups():
     assert {"quick", "paper", "sweep_lambda_mu", "sweep_safety"} <= set(EXPERIMENTS)
+    assert {"solver=hybrid", "runtime=default", "boom=huang9", "calibration/sensor=noise_free"} <= set(group_options())
 
 
 @pytest.mark.parametrize("experiment", [None, *EXPERIMENTS])
@@ -39,11 +84,39 @@ def test_every_experiment_composes_and_validates(experiment):
     check_all_groups(cfg)
 
 
-@pytest.mark.parametrize("boom", sorted(p.stem for p in (CONF_DIR / "boom").glob("*.yaml")))
-def test_every_boom_config_loads(boom):
-    from pipeline.core.build import load_boom
+@pytest.mark.parametrize("option", group_options())
+def test_every_group_option_composes_and_validates(option):
+    if option.startswith("boom=") and option != "boom=jumbo8":  # other booms: no tunnel / working box of theirs
+        from pipeline.core.build import load_boom
 
-    assert load_boom(boom).n_joints >= 6
+        assert load_boom(option.split("=")[1]).n_joints >= 6
+        return
+    cfg = compose([option])
+    OmegaConf.resolve(cfg)
+    check_all_groups(cfg)
+
+
+def test_every_calibration_level_parses():
+    for level in sorted((CONF_DIR / "calibration" / "level").glob("*.yaml")):
+        cfg = compose([f"calibration/level@calibration.levels.paper={level.stem}"])
+        parse(CalibrationSettings, node(cfg, "calibration"), "calibration")
+
+
+def field_default(f: dataclasses.Field):
+    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+
+
+@pytest.mark.parametrize("cls", list(NODES), ids=lambda c: c.__name__)
+def test_every_settings_default_equals_its_conf_value(cls):
+    """Code and conf/ agree, nested classes (calibration.network, swarm, ...) included: a default nobody can
+    see in conf/ must not differ from the value every run uses."""
+    key = NODES[cls]
+    parsed, conf = parse(cls, node(compose([]), key), key), node(compose([]), key)
+    for f in dataclasses.fields(cls):
+        if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            continue
+        assert f.name in conf, f"{key}.{f.name}: a code default ({field_default(f)!r}) with no conf value"
+        assert getattr(parsed, f.name) == field_default(f), (key, f.name, conf[f.name], field_default(f))
 
 
 @pytest.mark.parametrize(("override", "pattern"), [
@@ -58,7 +131,51 @@ def test_every_boom_config_loads(boom):
     ("tracking.enabled=maybe", r"tracking.enabled = 'maybe': expected true or false"),
     ("eval.timing_repeats=0", r"eval.timing_repeats = 0: must be >= 1"),
     ("benchmark.holes=-1", r"benchmark.holes = -1: must be >= 1"),
+    ("solver.max_iters=0", r"solver.max_iters = 0: must be >= 1"),
+    ("solver.prefer=fast", r"solver.prefer = 'fast': expected one of"),
+    ("runtime.threads=0", r"runtime.threads = 0: must be >= 1"),
+    ("solve.iredes.checksum=trust", r"solve.iredes.checksum = 'trust': expected one of"),
+    ("calibration.methods=[bp,magic]", r"calibration.methods = 'magic': expected one of"),
+    ("calibration.run_levels=[nosuch]", r"calibration.run_levels = \['nosuch'\]: \['nosuch'\] not among"),
+    ("calibration.n_measurements=[1]", r"calibration.n_measurements = 1: must be >= 2"),
+    ("calibration.ik.tol=0", r"calibration.ik.tol = 0.0: must be > 0"),
+    ("calibration.network.trainer=adam", r"trainer in \('lm', 'gd'\) required"),
+    ("derive_box.holes=10", r"derive_box.holes = 10: must be >= 100"),
+    ("holes.unsup.size=0", r"holes.unsup.size = 0: must be >= 1"),
 ])
 def test_bad_settings_are_named(override, pattern):
     with pytest.raises(ConfigError, match=pattern):
         check_all_groups(compose([override]))
+
+
+@pytest.mark.parametrize(("override", "pattern"), [
+    ("+solver.deep_start=3", r"solver.deep_start: unknown setting; did you mean 'deep_starts'\?"),
+    ("+solve.netwrok=uikm", r"solve.netwrok: unknown setting; did you mean 'network'\?"),
+    ("+solve.iredes.unit_=mm", r"solve.iredes.unit_: unknown setting; did you mean 'unit'\?"),
+    ("+train.stepz=3", r"train.stepz: unknown setting; did you mean 'steps'\?"),
+    ("+export.check.seeds=3", r"export.check.seeds: unknown setting; did you mean 'seed'\?"),
+    ("+calibration.swarm.pso.popluation=9", r"swarm.pso.popluation: unknown setting; did you mean 'population'\?"),
+    ("+runtime.thread=1", r"runtime.thread: unknown setting; did you mean 'threads'\?"),
+    ("+benchmark.solvers.hybrid.tol_mm=1", r"benchmark.solvers.hybrid.tol_mm: unknown setting.*solver group"),
+])
+def test_unknown_keys_are_refused_with_the_closest_known_one(override, pattern):
+    cfg = compose([override])
+    with pytest.raises(ConfigError, match=pattern):
+        check_all_groups(cfg)
+        from pipeline.solvers import build_solver
+
+        spec = OmegaConf.to_container(cfg.benchmark.solvers.hybrid)
+        build_solver("hybrid", spec, None, "models", {}, safety=object())
+
+
+def test_old_homes_of_moved_settings_are_refused():
+    """Settings that moved to one source must not be accepted, and silently ignored, at their old place."""
+    for old in ("+solve.solver.deep_starts=16", "+train.threads=1", "+train.log_model=false"):
+        with pytest.raises(ConfigError, match="unknown setting"):
+            check_all_groups(compose([old]))
+
+
+def test_quick_overrides_the_one_hybrid_source():
+    cfg = compose(["experiment=quick"])
+    assert parse(HybridSettings, cfg.solver, "solver").deep_starts == 16
+    assert set(cfg.benchmark.solvers.hybrid) == {"kind", "init"}  # the benchmark's entry holds no settings

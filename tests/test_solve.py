@@ -17,8 +17,8 @@ from pipeline.data.iredes import write_iredes_plan
 from pipeline.data.plans import read_csv_plan, write_csv_plan
 from pipeline.evaluation.metrics import solution_table
 
-TINY = ["train.steps=400", "train.log_model=true", "holes.unsup.size=500", "holes.sup.size=300",
-        "holes.test.size=20", "solve.solver.deep_starts=32"]
+TINY = ["train.steps=400", "runtime.log_model=true", "holes.unsup.size=500", "holes.sup.size=300",
+        "holes.test.size=20", "solver.deep_starts=32"]
 
 
 @pytest.fixture(scope="module")
@@ -93,6 +93,22 @@ def test_bad_rows_are_named_and_the_good_ones_still_solved(study, make_cfg):
     assert "zero-length" in invalid[good.loc[4, "hole_id"]]
     assert "non-finite" in invalid[good.loc[5, "hole_id"]]
     assert (table["status"] == "ok").sum() == len(good) - 4
+
+
+def test_invalid_rows_counts_rows_not_bad_cells(study, make_cfg):
+    """A row with three bad cells is one invalid row (before: ``invalid_rows`` counted the cells)."""
+    tmp, _ = study
+    good = pd.read_csv(tmp / "data" / "plans" / "small.csv")
+    bad = good.copy().astype({"collar_y": object, "toe_z": object})
+    bad.loc[1, ["collar_y", "toe_z"]] = ["abc", "inf"]  # two bad cells in one row ...
+    bad.loc[1, "hole_id"] = ""                            # ... and a third: an empty id
+    path = tmp / "data" / "plans" / "cells.csv"
+    bad.to_csv(path, index=False)
+    summary, table = solved(tmp, make_cfg, path)
+    assert (table["status"] == "invalid").sum() == 1
+    assert summary["invalid_rows"] == 1 and json.loads(path.with_name("cells_solution.json").read_text())[
+        "invalid_rows"] == 1
+    assert summary["holes"] == len(good) - 1
 
 
 def test_strict_mode_exits_non_zero_and_still_writes_the_solution(study, make_cfg):

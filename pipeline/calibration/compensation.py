@@ -43,7 +43,7 @@ class NetworkParams:
     iterations: int = 100
     lr: float = 0.1  # gradient descent only
     goal: float = 1e-4  # training MSE at which BP stops
-    trainer: str = "lm"
+    trainer: str = "gd"  # the paper's gradient descent with lr, as conf/calibration and docs say
     target: str = "residual"
     weight_bound: float = 1.0
 

@@ -85,13 +85,13 @@ def check_rule(value: Any, where: str, gt=None, ge=None, le=None, choices=None, 
 T = typing.TypeVar("T")
 
 
-def unknown_keys(node: Mapping, known, where: str) -> None:
-    """ConfigError for the first key of ``node`` not in ``known``, with the closest known one."""
+def unknown_keys(node: Mapping, known, where: str, note: str = "") -> None:
+    """ConfigError for the first key of ``node`` not in ``known``, with the closest known one (and ``note``)."""
     for key in node:
         if key not in known:
             close = difflib.get_close_matches(str(key), list(known), n=1, cutoff=0.6)
             hint = f"did you mean '{close[0]}'? " if close else ""
-            raise ConfigError(f"{where}.{key}: unknown setting; {hint}known: {sorted(known)}")
+            raise ConfigError(f"{where}.{key}: unknown setting; {hint}known: {sorted(known)}{note}")
 
 
 def parse(cls: type[T], node: Mapping | None, where: str) -> T:

@@ -30,6 +30,7 @@ from pipeline.core.build import load_boom
 from pipeline.core.config import as_dict
 from pipeline.deploy import formats
 from pipeline.deploy.package import LatencySettings, check_poses, versions
+from pipeline.evaluation.markdown import markdown_rows
 from pipeline.learning.models import IKNet, build_model, load_checkpoint, save_checkpoint
 
 log = logging.getLogger(__name__)
@@ -181,13 +182,10 @@ def machine(load_before: float, threads: int) -> dict[str, str | int]:
 def latency_markdown(table: pd.DataFrame, model: IKNet, about: dict) -> str:
     h = model.hparams
     rest = ", ".join(f"{k} {about[k]}" for k in about if k not in ("cpu", "cores", "torch_threads", "load"))
-    lines = [f"Network {h['depth']} x {h['width']} {h['activation'].upper()} (random weights), float32. "
-             f"{about['cpu']}, {about['cores']} cores, {about['torch_threads']} torch thread(s), load average (1 min) "
-             f"{about['load']}; {rest}.",
-             "", "| runtime | holes per call | median (ms) | µs per hole | setup (s) |", "|---|---|---|---|---|"]
-    for r in table.itertuples():
-        if pd.isna(r.median_ms):
-            lines.append(f"| {r.runtime} | {r.holes} | {r.note} | | |")
-        else:
-            lines.append(f"| {r.runtime} | {r.holes} | {r.median_ms:.3f} | {r.us_per_hole:.2f} | {r.setup_s:.2f} |")
-    return "\n".join(lines) + "\n"
+    rows = [[r.runtime, r.holes, r.note, "", ""] if pd.isna(r.median_ms) else
+            [r.runtime, r.holes, f"{r.median_ms:.3f}", f"{r.us_per_hole:.2f}", f"{r.setup_s:.2f}"]
+            for r in table.itertuples()]
+    return (f"Network {h['depth']} x {h['width']} {h['activation'].upper()} (random weights), float32. "
+            f"{about['cpu']}, {about['cores']} cores, {about['torch_threads']} torch thread(s), load average (1 min) "
+            f"{about['load']}; {rest}.\n\n"
+            + markdown_rows(["runtime", "holes per call", "median (ms)", "µs per hole", "setup (s)"], rows))

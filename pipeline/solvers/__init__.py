@@ -51,7 +51,8 @@ def build_solver(name: str, spec: Mapping, boom: Boom, models_dir: Path, specs: 
         if kind == "hybrid":
             if safety is None:
                 raise ConfigError(f"benchmark.solvers.{name}: the hybrid solver needs the safety model")
-            unknown_keys(spec, HYBRID_ENTRY, f"benchmark.solvers.{name} (the hybrid's settings are solver.*)")
+            unknown_keys(spec, HYBRID_ENTRY, f"benchmark.solvers.{name}",
+                         "; the hybrid's settings are the solver group (solver.*, conf/solver/hybrid.yaml)")
             init = _init_solver(name, spec.pop("init", None), boom, models_dir, specs, safety)
             return HybridSolver(boom, safety, init, hybrid or parse(HybridSettings, {}, "solver"), name, start_box)
         if kind == "network":
