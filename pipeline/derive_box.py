@@ -3,7 +3,8 @@
     python -m pipeline.derive_box                       # 5000 holes, seed 7, 1st-99th percentile
     python -m pipeline.params                           # then recompose params.yaml
 
-See :mod:`pipeline.data.working_box`. The file is configuration (committed); ``generate`` reads it.
+See :func:`pipeline.learning.supervised_set.derive_working_box`. The file is configuration (committed);
+``generate`` reads it.
 """
 
 from __future__ import annotations
