@@ -110,7 +110,7 @@ def load_solve_boom(boom_cfg, boom_model):
 def load_network(settings: SolveSettings, models_dir: Path, boom, tracking: TrackingSettings):
     """The starting network: an MLflow model URI, or ``models_dir/<network>.pt``."""
     if settings.model_uri:
-        return check_network_fits(load_logged_network(settings.model_uri, tracking), boom, settings.model_uri)
+        return check_network_fits(load_logged_network(settings.model_uri, tracking)[0], boom, settings.model_uri)
     path = models_dir / f"{settings.network}.pt"
     return check_network_fits(load_checkpoint(path)[0], boom, str(path))
 

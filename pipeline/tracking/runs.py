@@ -247,16 +247,20 @@ class StageRun:
             else:
                 mlflow.log_artifact(str(path), artifact_path=folder)
 
-    def log_network(self, model, input_example, registered_name: str | None = None) -> None:
-        """The trained network as an MLflow model (MLflow 3 needs an input example), optionally
-        registered in the Model Registry under ``registered_name``. Pickled, not MLflow 3's default
-        ``torch.export`` program: ``solve`` loads it back as the :class:`IKNet` it is (limits and
-        normalisation included); deployable exports are the ``export`` stage's job."""
+    def log_network(self, model, input_example, checkpoint: str | Path, name: str = "model", step: int = 0,
+                    registered_name: str | None = None) -> None:
+        """The trained network as an MLflow model named ``name`` at training step ``step`` (MLflow links
+        that step's metrics to it), optionally registered as ``registered_name``.
+
+        Never pickled: the model is a ``torch.export`` program (MLflow's ``pt2``, which loads without
+        running code) and carries the project's weights-only checkpoint as an extra file, which is
+        what :func:`load_logged_network` reads back as the :class:`IKNet` it is."""
         if self.active:
             import mlflow.pytorch
 
-            mlflow.pytorch.log_model(model, name="model", input_example=input_example, pip_requirements=["torch"],
-                                     registered_model_name=registered_name, serialization_format="pickle")
+            mlflow.pytorch.log_model(model, name=name, input_example=input_example, pip_requirements=["torch"],
+                                     registered_model_name=registered_name, serialization_format="pt2",
+                                     extra_files=[str(checkpoint)], step=int(step))
 
     def log_dataset(self, df, path: str | Path, context: str, digest: str | None = None) -> None:
         """A table the run read, as an MLflow dataset input whose digest is the file's MD5, the hash
@@ -335,18 +339,42 @@ def log_training_progress(run: StageRun, step: int, steps: int, record: Mapping[
                  elapsed, left)
 
 
-def load_logged_network(uri: str, settings: TrackingSettings):
-    """A network logged by ``train`` (``runs:/<id>/model``, ``models:/<name>@<alias>``), on the CPU,
-    in eval mode; a URI MLflow cannot resolve is named with MLflow's own reason."""
+def load_logged_network(uri: str, settings: TrackingSettings, where: str = "solve.model_uri"):
+    """A network logged by ``train`` (``runs:/<id>/<name>``, ``models:/<name>@<alias>``), on the CPU, in
+    eval mode, and the checkpoint's metadata.
+
+    Only the files are downloaded; the network is read from the weights-only checkpoint the model
+    carries (:func:`~pipeline.learning.models.load_checkpoint`). MLflow's own loader is never called:
+    a model logged in pickle form (by earlier versions) would run code from the store, so it is refused
+    with how to log it again."""
     import mlflow
-    import mlflow.pytorch
+    import yaml
     from mlflow.exceptions import MlflowException
 
     from pipeline.core.errors import InputError
+    from pipeline.learning.models import load_checkpoint
 
     mlflow.set_tracking_uri(settings.uri)
     try:
-        model = mlflow.pytorch.load_model(uri, map_location="cpu")
+        local = Path(mlflow.artifacts.download_artifacts(artifact_uri=uri))
     except (MlflowException, OSError) as exc:
-        raise InputError(f"solve.model_uri = {uri}: cannot load it from {settings.uri} ({exc})") from None
-    return model.eval()
+        raise InputError(f"{where} = {uri}: cannot load it from {settings.uri} ({exc})") from None
+    spec = local / "MLmodel"
+    if not spec.is_file():
+        raise InputError(f"{where} = {uri}: not an MLflow model (no MLmodel file in {local})")
+    try:
+        flavor = (yaml.safe_load(spec.read_text()) or {}).get("flavors", {}).get("pytorch", {})
+    except yaml.YAMLError as exc:
+        raise InputError(f"{where} = {uri}: its MLmodel file is not readable YAML ({exc})") from None
+    entries = [e["path"] for e in flavor.get("extra_files", []) if isinstance(e, dict) and "path" in e]
+    extra = [(local / e).resolve() for e in entries]
+    checkpoints = [f for f in extra if f.suffix == ".pt" and f.is_file() and local.resolve() in f.parents]
+    if len(checkpoints) != 1:
+        fmt = flavor.get("serialization_format", "unknown")
+        raise InputError(f"{where} = {uri}: refused, this model carries no weights-only checkpoint (format {fmt!r});"
+                         " a pickled model would run code from the store when loaded. Log the network again with "
+                         "`python -m pipeline.train method=<method>` and use the new run's model")
+    try:
+        return load_checkpoint(checkpoints[0])
+    except InputError as exc:
+        raise InputError(f"{where} = {uri}: {exc}") from None
