@@ -149,15 +149,17 @@ def _process_alive(pid: int, start: str | None) -> bool:
         return False
 
 
-def mark_stale_runs(experiment_id: str) -> list[str]:
-    """End as KILLED the RUNNING runs that a process of this host started and that is gone (SIGKILL,
-    power loss); returns their ids."""
+def mark_stale_runs() -> list[str]:
+    """End as KILLED the RUNNING runs, in every experiment of the store, that a process of this host
+    started and that is gone (SIGKILL, power loss); returns their ids."""
+    from mlflow.entities import ViewType
     from mlflow.tracking import MlflowClient
 
     client = MlflowClient()
     host = socket.gethostname()
-    runs = client.search_runs([experiment_id], f"attributes.status = 'RUNNING' and tags.host = '{host}'",
-                              max_results=1000)
+    experiments = [e.experiment_id for e in client.search_experiments(view_type=ViewType.ALL)]
+    runs = client.search_runs(experiments, f"attributes.status = 'RUNNING' and tags.host = '{host}'",
+                              run_view_type=ViewType.ALL, max_results=1000) if experiments else []
     stale = []
     for run in runs:
         pid = run.data.tags.get("pid")
@@ -294,7 +296,7 @@ def stage_run(settings: TrackingSettings, run_name: str, tags: Mapping[str, str]
         import mlflow
 
         exp_id = prepare_store(settings)
-        mark_stale_runs(exp_id)
+        mark_stale_runs()
         run = mlflow.start_run(experiment_id=exp_id, run_name=run_name,
                                tags={**process_tags(), **dict(tags or {})},
                                log_system_metrics=bool(system_metrics and settings.system_metrics))
