@@ -102,7 +102,7 @@ def save_outputs(model: IKNet, history: list[dict], final: dict, models_dir: Pat
 
             mlrun.log_figure(training_curves({name: hist_df}), f"figures/training_{name}.png")
             if log_model:
-                mlrun.log_network(model, example,
+                mlrun.log_network(model, example, ckpt, name=name, step=int(final["kept_step"]),
                                   registered_name=f"{tracking.experiment}-{name}" if tracking.register_models else None)
             mlrun.log_artifact(ckpt)
         publish(files, models_dir / f".{name}.lock")

@@ -309,3 +309,22 @@ def test_an_interrupted_generate_leaves_the_old_set_whole(tmp_path, make_cfg, mo
         generate.run(make_cfg(tmp_path, *TINY, "holes.unsup.seed=9"))
     assert {p.name: p.read_bytes() for p in holes.iterdir()} == before
     assert not [p.name for p in (tmp_path / "data").iterdir() if p.name.startswith(".")]  # no staging folder left
+
+
+def test_stale_runs_of_dead_processes_are_marked_killed_in_every_experiment(tmp_path):
+    """A run left RUNNING by a killed process of another experiment (a quick study, a sweep) is ended too."""
+    import socket
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait(timeout=60)
+    settings = TrackingSettings.from_config({"enabled": True, "uri": f"sqlite:///{tmp_path}/mlflow.db",
+                                             "experiment": "boom-ik", "artifact_root": str(tmp_path / "art")})
+    client = MlflowClient(settings.uri)
+    other = client.create_experiment("boom-ik-quick", artifact_location=(tmp_path / "art").as_uri())
+    left = client.create_run(other, tags={"host": socket.gethostname(), "pid": str(dead.pid), "pid_start": "1.0"})
+    alive = client.create_run(other, tags={"host": socket.gethostname(), "pid": str(os.getpid())})
+    with stage_run(settings, "next", {"stage": "test"}):
+        pass
+    assert client.get_run(left.info.run_id).info.status == "KILLED"
+    assert "ended without closing the run" in client.get_run(left.info.run_id).data.tags["run.end_reason"]
+    assert client.get_run(alive.info.run_id).info.status == "RUNNING"  # this process still lives

@@ -139,8 +139,8 @@ def test_the_network_can_come_from_an_mlflow_model_uri(study, make_cfg):
     exp = client.get_experiment_by_name("boom-ik-quick")
     (run,) = client.search_runs([exp.experiment_id], "tags.stage = 'train'")
     plan = tmp / "data" / "plans" / "small.csv"
-    summary, table = solved(tmp, make_cfg, plan, f"solve.model_uri=runs:/{run.info.run_id}/model")
-    assert summary["ok"] == len(table) and table["method"].iloc[0] == f"hybrid (runs:/{run.info.run_id}/model)"
+    summary, table = solved(tmp, make_cfg, plan, f"solve.model_uri=runs:/{run.info.run_id}/cuikm")
+    assert summary["ok"] == len(table) and table["method"].iloc[0] == f"hybrid (runs:/{run.info.run_id}/cuikm)"
     with pytest.raises(InputError, match=r"solve.model_uri = runs:/nope/model: cannot load it"):
         solve.run(make_cfg(tmp, *TINY, f"plan={plan}", "solve.model_uri=runs:/nope/model"))
 

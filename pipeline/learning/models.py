@@ -102,6 +102,14 @@ def _rebuild_hint(path: Path) -> str:
     return f"rebuild it with `python -m pipeline.train method={path.stem}` (or `dvc repro train@{path.stem}`)"
 
 
+def _unsafe_global(exc: Exception) -> str:
+    """The global torch's weights-only unpickler refused (``GLOBAL io.open``), without its advice to trust the file."""
+    for line in str(exc).splitlines():
+        if "GLOBAL " in line:
+            return "GLOBAL " + line.split("GLOBAL ", 1)[1].split(" ", 1)[0]
+    return type(exc).__name__
+
+
 def load_checkpoint(path: str | Path, map_location="cpu") -> tuple[IKNet, dict]:
     """The network (eval mode) and the checkpoint's metadata (boom config, method, ...).
 
@@ -110,9 +118,13 @@ def load_checkpoint(path: str | Path, map_location="cpu") -> tuple[IKNet, dict]:
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such model checkpoint; {_rebuild_hint(path)}")
-    try:
-        payload = torch.load(path, map_location=map_location, weights_only=False)
-    except (EOFError, OSError, RuntimeError, pickle.UnpicklingError, zipfile.BadZipFile, ValueError) as exc:
+    try:  # weights only: a checkpoint is data, and torch's full unpickler would run code from the file
+        payload = torch.load(path, map_location=map_location, weights_only=True)
+    except pickle.UnpicklingError as exc:
+        raise InputError(f"{path}: refused, the file holds objects beyond weights and plain values "
+                         f"({_unsafe_global(exc)}) and loading them would run code from it; "
+                         f"{_rebuild_hint(path)}") from None
+    except (EOFError, OSError, RuntimeError, zipfile.BadZipFile, ValueError) as exc:
         raise InputError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {exc}); "
                          f"{_rebuild_hint(path)}") from None
     missing = [k for k in CHECKPOINT_KEYS if not isinstance(payload, dict) or k not in payload]

@@ -149,15 +149,17 @@ def _process_alive(pid: int, start: str | None) -> bool:
         return False
 
 
-def mark_stale_runs(experiment_id: str) -> list[str]:
-    """End as KILLED the RUNNING runs that a process of this host started and that is gone (SIGKILL,
-    power loss); returns their ids."""
+def mark_stale_runs() -> list[str]:
+    """End as KILLED the RUNNING runs, in every experiment of the store, that a process of this host
+    started and that is gone (SIGKILL, power loss); returns their ids."""
+    from mlflow.entities import ViewType
     from mlflow.tracking import MlflowClient
 
     client = MlflowClient()
     host = socket.gethostname()
-    runs = client.search_runs([experiment_id], f"attributes.status = 'RUNNING' and tags.host = '{host}'",
-                              max_results=1000)
+    experiments = [e.experiment_id for e in client.search_experiments(view_type=ViewType.ALL)]
+    runs = client.search_runs(experiments, f"attributes.status = 'RUNNING' and tags.host = '{host}'",
+                              run_view_type=ViewType.ALL, max_results=1000) if experiments else []
     stale = []
     for run in runs:
         pid = run.data.tags.get("pid")
@@ -247,16 +249,20 @@ class StageRun:
             else:
                 mlflow.log_artifact(str(path), artifact_path=folder)
 
-    def log_network(self, model, input_example, registered_name: str | None = None) -> None:
-        """The trained network as an MLflow model (MLflow 3 needs an input example), optionally
-        registered in the Model Registry under ``registered_name``. Pickled, not MLflow 3's default
-        ``torch.export`` program: ``solve`` loads it back as the :class:`IKNet` it is (limits and
-        normalisation included); deployable exports are the ``export`` stage's job."""
+    def log_network(self, model, input_example, checkpoint: str | Path, name: str = "model", step: int = 0,
+                    registered_name: str | None = None) -> None:
+        """The trained network as an MLflow model named ``name`` at training step ``step`` (MLflow links
+        that step's metrics to it), optionally registered as ``registered_name``.
+
+        Never pickled: the model is a ``torch.export`` program (MLflow's ``pt2``, which loads without
+        running code) and carries the project's weights-only checkpoint as an extra file, which is
+        what :func:`pipeline.learning.network_source.load_network` reads back as the :class:`IKNet` it is."""
         if self.active:
             import mlflow.pytorch
 
-            mlflow.pytorch.log_model(model, name="model", input_example=input_example, pip_requirements=["torch"],
-                                     registered_model_name=registered_name, serialization_format="pickle")
+            mlflow.pytorch.log_model(model, name=name, input_example=input_example, pip_requirements=["torch"],
+                                     registered_model_name=registered_name, serialization_format="pt2",
+                                     extra_files=[str(checkpoint)], step=int(step))
 
     def log_dataset(self, df, path: str | Path, context: str, digest: str | None = None) -> None:
         """A table the run read, as an MLflow dataset input whose digest is the file's MD5, the hash
@@ -290,7 +296,7 @@ def stage_run(settings: TrackingSettings, run_name: str, tags: Mapping[str, str]
         import mlflow
 
         exp_id = prepare_store(settings)
-        mark_stale_runs(exp_id)
+        mark_stale_runs()
         run = mlflow.start_run(experiment_id=exp_id, run_name=run_name,
                                tags={**process_tags(), **dict(tags or {})},
                                log_system_metrics=bool(system_metrics and settings.system_metrics))
@@ -333,20 +339,3 @@ def log_training_progress(run: StageRun, step: int, steps: int, record: Mapping[
         log.info("train %s: step %d/%d (%.0f %%), loss %.4g, held-out %.2f mm, %.0f s elapsed, ~%.0f s left",
                  method, step + 1, steps, 100 * done, record.get("loss", math.nan), record.get("val_hole_mm", math.nan),
                  elapsed, left)
-
-
-def load_logged_network(uri: str, settings: TrackingSettings):
-    """A network logged by ``train`` (``runs:/<id>/model``, ``models:/<name>@<alias>``), on the CPU,
-    in eval mode; a URI MLflow cannot resolve is named with MLflow's own reason."""
-    import mlflow
-    import mlflow.pytorch
-    from mlflow.exceptions import MlflowException
-
-    from pipeline.core.errors import InputError
-
-    mlflow.set_tracking_uri(settings.uri)
-    try:
-        model = mlflow.pytorch.load_model(uri, map_location="cpu")
-    except (MlflowException, OSError) as exc:
-        raise InputError(f"solve.model_uri = {uri}: cannot load it from {settings.uri} ({exc})") from None
-    return model.eval()
