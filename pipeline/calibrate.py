@@ -30,6 +30,7 @@ from pipeline.calibration.identification import Basis, Weights, identifiable_bas
 from pipeline.calibration.ik import solve_holes
 from pipeline.calibration.measurements import Measurements, Sensor, read_measurements, simulate
 from pipeline.calibration.model_file import save_model
+from pipeline.calibration.quality import GateSettings, assess, rejected_path, rejection_message, write_rejected
 from pipeline.calibration.swarm import PSOParams, SSAParams
 from pipeline.core.build import build_safety
 from pipeline.core.config import project_path
@@ -235,20 +236,32 @@ def run_study(cfg: DictConfig, mlrun: StageRun) -> pd.DataFrame:
 
 
 def fit_file(cfg: DictConfig, mlrun: StageRun):
-    """Fit the identified model to a measurement file and write it to ``calibration.model_file``."""
+    """Fit the identified model to a measurement file and write it to ``calibration.model_file`` when
+    it passes the quality gate (:mod:`pipeline.calibration.quality`); a rejected fit raises."""
     ccfg = cfg.calibration
+    gate = GateSettings.from_config(ccfg.gate)
     safety = build_safety(cfg.boom, cfg.tunnel, cfg.safety)
     nominal = safety.boom
     path = project_path(cfg.measurements)
     meas: Measurements = read_measurements(path, nominal, ccfg.file_units.angle, ccfg.file_units.length)
     weights = Weights(**ccfg.identification.weights)
     basis = identifiable_basis(nominal, weights, int(ccfg.identification.basis_poses), seed=int(ccfg.seeds.poses))
-    fit = identify(nominal, meas, basis, weights, int(ccfg.identification.max_iters),
-                   max_condition=float(ccfg.identification.max_condition))
+    max_iters, max_condition = int(ccfg.identification.max_iters), float(ccfg.identification.max_condition)
+    fit = identify(nominal, meas, basis, weights, max_iters, max_condition=max_condition)
     out = project_path(ccfg.model_file)
     summary = {"measurements": str(path), "n_measurements": len(meas), "collar_rms_mm": fit.collar_rms_mm,
                "direction_rms_deg": fit.direction_rms_deg, "rank": fit.rank, "condition": fit.condition}
-    save_model(out, nominal, fit.twists, basis.kept_names, summary, basis.describe())
+    report = assess(nominal, meas, basis, weights, fit, gate, max_iters, max_condition)
+    mlrun.log_metrics({f"gate.{r.name}": r.value for r in report.rules if math.isfinite(r.value)})
+    mlrun.set_tags({"calibration.gate": "accepted" if report.accepted else "rejected: " + ", ".join(report.failed)})
+    for text in report.warnings:
+        log.warning("%s: %s", path, text)
+    if not report.accepted:  # the current model stays; the report goes beside it
+        write_rejected(out, report, summary)
+        mlrun.log_artifact(rejected_path(out), "calibration")
+        raise InputError(rejection_message(str(path), report, rejected_path(out)))
+    save_model(out, nominal, fit.twists, basis.kept_names, {**summary, "gate": report.as_dict()}, basis.describe())
+    rejected_path(out).unlink(missing_ok=True)  # a report of an earlier rejected fit no longer describes this model
     log.info("identified %d parameters from %d measurements of %s: residual rms %.3g mm / %.3g deg -> %s",
              fit.rank, len(meas), path, fit.collar_rms_mm, fit.direction_rms_deg, out)
     mlrun.log_metrics({k: float(v) for k, v in summary.items() if k != "measurements"})
@@ -263,6 +276,8 @@ def run(cfg: DictConfig):
     fitting = bool(cfg.get("measurements"))
     if fitting and not project_path(cfg.measurements).is_file():  # before any run exists
         raise InputError(f"measurements = {cfg.measurements}: no such file")
+    if fitting:
+        GateSettings.from_config(cfg.calibration.gate)
     with stage_run(tracking, "calibrate-fit" if fitting else "calibrate", {"stage": "calibrate"}) as mlrun:
         mlrun.log_params({"calibration": OmegaConf.to_container(cfg.calibration, resolve=True),
                           "measurements": str(cfg.get("measurements"))})
