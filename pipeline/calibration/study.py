@@ -32,6 +32,7 @@ from pipeline.calibration.measurements import (
     simulate,
 )
 from pipeline.calibration.model_file import save_model
+from pipeline.calibration.quality import GateSettings, assess, rejected_path, rejection_message, write_rejected
 from pipeline.calibration.swarm import PSOParams, SSAParams
 from pipeline.core.build import build_safety
 from pipeline.core.config import project_path
@@ -115,6 +116,7 @@ class CalibrationSettings:
     swarm: SwarmSettings = field(default_factory=SwarmSettings)
     identification: IdentificationSettings = field(default_factory=IdentificationSettings)
     file_units: FileUnits = field(default_factory=FileUnits)
+    gate: GateSettings = field(default_factory=GateSettings)  # the field fit's quality gate
 
     def __post_init__(self):
         levels = {str(k): parse(ErrorLevel, v, f"calibration.levels.{k}") for k, v in dict(self.levels).items()}
@@ -292,21 +294,32 @@ def run_study(cfg: DictConfig, ccfg: CalibrationSettings, mlrun) -> pd.DataFrame
 
 
 def fit_file(cfg: DictConfig, ccfg: CalibrationSettings, mlrun):
-    """Fit the identified model to a measurement file and write it to ``calibration.model_file``."""
+    """Fit the identified model to a measurement file and write it to ``calibration.model_file`` when
+    it passes the quality gate (:mod:`pipeline.calibration.quality`); a rejected fit raises."""
     safety = build_safety(cfg.boom, cfg.tunnel, cfg.safety)
     nominal = safety.boom
     path = project_path(cfg.measurements)
     meas: Measurements = read_measurements(path, nominal, ccfg.file_units.angle, ccfg.file_units.length)
     weights = ccfg.identification.weights
     basis = identifiable_basis(nominal, weights, int(ccfg.identification.basis_poses), seed=int(ccfg.seeds.poses))
-    fit = identify(nominal, meas, basis, weights, int(ccfg.identification.max_iters),
-                   max_condition=float(ccfg.identification.max_condition))
+    max_iters, max_condition = int(ccfg.identification.max_iters), float(ccfg.identification.max_condition)
+    fit = identify(nominal, meas, basis, weights, max_iters, max_condition=max_condition)
     out = project_path(ccfg.model_file)
     summary = {"measurements": str(path), "n_measurements": len(meas), "collar_rms_mm": fit.collar_rms_mm,
                "direction_rms_deg": fit.direction_rms_deg, "rank": fit.rank, "condition": fit.condition}
-    save_model(out, nominal, fit.twists, basis.kept_names, summary, basis.describe())
+    report = assess(nominal, meas, basis, weights, fit, ccfg.gate, max_iters, max_condition)
+    mlrun.log_metrics({k: float(v) for k, v in summary.items() if k != "measurements" and math.isfinite(v)})
+    mlrun.log_metrics({f"gate.{r.name}": r.value for r in report.rules if math.isfinite(r.value)})
+    mlrun.set_tags({"calibration.gate": "accepted" if report.accepted else "rejected: " + ", ".join(report.failed)})
+    for text in report.warnings:
+        log.warning("%s: %s", path, text)
+    if not report.accepted:  # the current model stays; the report goes beside it
+        write_rejected(out, report, summary)
+        mlrun.log_artifact(rejected_path(out), "calibration")
+        raise InputError(rejection_message(str(path), report, rejected_path(out)))
+    save_model(out, nominal, fit.twists, basis.kept_names, {**summary, "gate": report.as_dict()}, basis.describe())
+    rejected_path(out).unlink(missing_ok=True)  # a report of an earlier rejected fit no longer describes this model
     log.info("identified %d parameters from %d measurements of %s: residual rms %.3g mm / %.3g deg -> %s",
              fit.rank, len(meas), path, fit.collar_rms_mm, fit.direction_rms_deg, out)
-    mlrun.log_metrics({k: float(v) for k, v in summary.items() if k != "measurements"})
     mlrun.log_artifact(out, "calibration")
     return fit
