@@ -16,7 +16,8 @@ as a constraint, and an honest status for every hole.
 
    * ``ok``: hole-seeking error <= ``tol_mm`` and every clearance >= 0 (the safety distances hold);
    * ``inexact``: clear, but the error is between ``tol_mm`` and ``reach_tol_mm``;
-   * ``unsafe``: exact, but every exact solution found violates a safety distance;
+   * ``unsafe``: reached within ``reach_tol_mm`` (exact, or inexact), but every such solution found
+     violates a safety distance;
    * ``unreachable``: no start reached the pose within ``reach_tol_mm``, whatever the collisions.
 
    Every hole keeps its best joints and their clearances; nothing is dropped.
@@ -202,15 +203,19 @@ class HybridSolver(Solver):
     def rank(self, cand: Candidates, reference: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Status index (into STATUSES) and a score to minimise, per candidate: ok prefers the
         largest clearance (or, with ``prefer: start``, the least motion from ``reference``, in
-        fractions of each joint's range), inexact the smallest error, unsafe the smallest violation."""
+        fractions of each joint's range), inexact the smallest error, unsafe an exact one first and then
+        the smallest violation, unreachable the smallest error."""
         tol, reach = self.s.tol_mm / 1000, self.s.reach_tol_mm / 1000
         worst = cand.clearances.min(dim=-1).values
-        exact, clear = cand.hole_error <= tol, worst >= 0
-        status = torch.full_like(cand.iterations, 3)
-        status = torch.where(exact & ~clear, torch.full_like(status, 2), status)
-        status = torch.where(clear & (cand.hole_error <= reach), torch.full_like(status, 1), status)
+        exact, clear, reached = cand.hole_error <= tol, worst >= 0, cand.hole_error <= reach
+        status = torch.full_like(cand.iterations, 3)  # unreachable: not within reach_tol, whatever the collisions
+        # reached within reach_tol but colliding is unsafe, not unreachable (the pose can be reached)
+        status = torch.where(reached & ~clear, torch.full_like(status, 2), status)
+        status = torch.where(clear & reached, torch.full_like(status, 1), status)
         status = torch.where(exact & clear, torch.full_like(status, 0), status)
-        key = torch.where((status == 0) | (status == 2), -worst.clamp(-10, 10), cand.hole_error.clamp(max=1e3))
+        # among unsafe candidates an exact one first (as before), then the smallest violation
+        key = torch.where(status == 0, -worst.clamp(-10, 10), cand.hole_error.clamp(max=1e3))
+        key = torch.where(status == 2, -worst.clamp(-10, 10) + 100.0 * (~exact).double(), key)
         if self.s.prefer == "start" and reference is not None:
             span = self.space.upper - self.space.lower
             motion = (((cand.q - reference)[:, self.space.free] / span) ** 2).sum(-1)
