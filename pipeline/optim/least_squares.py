@@ -64,7 +64,8 @@ class Evaluation:
 # fun(x (b, n), rows (b,) original row indices, current evaluation of those rows or None at the start)
 Residuals = Callable[[torch.Tensor, torch.Tensor, Evaluation | None], Evaluation]
 Jacobian = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]  # jac(x, rows) -> (b, m, n)
-# done(x, evaluation, rows) -> (mask (b,), evaluation): a row is finished; the callback may refresh the evaluation
+# done(x, evaluation, rows) -> (mask (b,), refreshed evaluation or None): which rows are finished; the
+# callback may re-evaluate rows (in place) and then returns the evaluation
 Done = Callable[[torch.Tensor, Evaluation, torch.Tensor], tuple[torch.Tensor, Evaluation]]
 
 
@@ -141,9 +142,7 @@ def least_squares(fun: Residuals, x0: torch.Tensor, *, jac: Jacobian | None = No
     """
     if max_trials is None and max_steps is None:
         raise ConfigError("least squares: give max_trials or max_steps (else a row might never stop)")
-    B = x0.shape[0]
-    n = x0.shape[-1]
-    dtype = x0.dtype
+    B, n, dtype = x0.shape[0], x0.shape[-1], x0.dtype
     x_out = x0.clone()
     trials = torch.zeros(B, dtype=torch.long)
     steps = torch.zeros(B, dtype=torch.long)
@@ -154,78 +153,85 @@ def least_squares(fun: Residuals, x0: torch.Tensor, *, jac: Jacobian | None = No
         ev = initial
     else:
         ev = fun(x, idx, None)
-        jacobians += int(ev.J is not None)
     c = cost(ev.r)
     ev_out = Evaluation(ev.r.clone(), None, {k: v.clone() for k, v in ev.extra.items()})
     c_out = c.clone()
+    # counters of the rows still running (compacted with them): every running row makes one trial per
+    # pass, so its trials are the pass count; accepted steps and Jacobians differ per row
+    n_steps = torch.zeros(B, dtype=torch.long)
+    n_jac = torch.full((B,), int(initial is None and ev.J is not None), dtype=torch.long)
     lam = torch.full((B,), damping.initial, dtype=dtype)
     eye = torch.eye(n, dtype=dtype)
+    floor = damping.floor * eye
     costs, accepted = [], []
-    stopped = torch.zeros(B, dtype=torch.bool)  # by a stopping rule of the last step (ftol, xtol, give_up)
+    stopped = None  # rows a stopping rule of the last step ended (ftol, xtol, give_up)
+    may_stop = ftol is not None or xtol is not None or math.isfinite(damping.give_up)
+    it = 0
     while True:
-        fin = stopped.clone()
-        finished = torch.zeros_like(fin)
+        fin = stopped
+        finished = None
         if cost_tol is not None:
-            finished |= c <= cost_tol
+            finished = c <= cost_tol
         if done is not None:
-            mask, ev = done(x, ev, idx)
-            c = cost(ev.r)
-            finished |= mask
-        budget = torch.zeros_like(fin)
-        if max_trials is not None:
-            budget |= trials[idx] >= max_trials
+            mask, refreshed = done(x, ev, idx)
+            if refreshed is not None:
+                ev, c = refreshed, cost(refreshed.r)
+            finished = mask if finished is None else finished | mask
+        if finished is not None:
+            fin = finished if fin is None else fin | finished
+        out_of_budget = max_trials is not None and it >= max_trials
         if max_steps is not None:
-            budget |= steps[idx] >= max_steps
-        fin |= finished | budget
-        if groups is not None and finished.any():
+            over = n_steps >= max_steps
+            fin = over if fin is None else fin | over
+        if groups is not None and finished is not None and not out_of_budget and finished.any():
             served = torch.zeros(int(groups.max()) + 1, dtype=torch.bool)
             served[groups[idx[finished]]] = True
-            fin |= served[groups[idx]]
-        if fin.any():
-            x_out[idx[fin]], c_out[idx[fin]] = x[fin], c[fin]
-            ev_out.put(idx[fin], _without_jacobian(ev.take(fin)))
+            fin = fin | served[groups[idx]]
+        if out_of_budget:
+            fin = torch.ones(len(idx), dtype=torch.bool)
+        if fin is not None and fin.any():
+            rows = idx[fin]
+            x_out[rows], c_out[rows] = x[fin], c[fin]
+            trials[rows], steps[rows], jacobians[rows] = it, n_steps[fin], n_jac[fin]
+            ev_out.r[rows] = ev.r[fin]
+            for k, v in ev_out.extra.items():
+                v[rows] = ev.extra[k][fin]
             keep = ~fin
             if not keep.any():
                 break
-            idx, x, lam, c, stopped = idx[keep], x[keep], lam[keep], c[keep], stopped[keep]
+            idx, x, lam, c, n_steps, n_jac = idx[keep], x[keep], lam[keep], c[keep], n_steps[keep], n_jac[keep]
             ev = ev.take(keep)
         if ev.J is None:
             ev.J = jac(x, idx)
-            jacobians[idx] += 1
+            n_jac += 1
         J, r = ev.J, ev.r
-        JtJ = J.transpose(-1, -2) @ J
-        D = (torch.diagonal(JtJ, dim1=-2, dim2=-1).unsqueeze(-1) * eye + damping.floor * eye
-             if damping.marquardt else eye)
-        step = torch.linalg.solve(JtJ + lam[:, None, None] * D, -(J.transpose(-1, -2) @ r.unsqueeze(-1))).squeeze(-1)
+        Jt = J.transpose(-1, -2)
+        JtJ = Jt @ J
+        D = torch.diagonal(JtJ, dim1=-2, dim2=-1).unsqueeze(-1) * eye + floor if damping.marquardt else eye
+        step = torch.linalg.solve(JtJ + lam[:, None, None] * D, -(Jt @ r.unsqueeze(-1))).squeeze(-1)
         x_new = x + step if project is None else project(x + step)
         ev_new = fun(x_new, idx, ev)
         if ev_new.J is not None:
-            jacobians[idx] += 1
+            n_jac += 1
         c_new = cost(ev_new.r)
         better = c_new < c  # NaN and inf never are
-        trials[idx] += 1
-        steps[idx] += better.long()
-        if ftol is not None or xtol is not None:
-            small = torch.zeros_like(better)
+        it += 1
+        n_steps += better
+        if may_stop:  # an accepted step that gained (almost) nothing
+            stopped = torch.zeros_like(better)
             if ftol is not None:
-                small |= c - c_new <= ftol * c
+                stopped |= better & (c - c_new <= ftol * c)
             if xtol is not None:
-                small |= step.norm(dim=-1) <= xtol * (1 + x.norm(dim=-1))
-            stopped = better & small
+                stopped |= better & (step.norm(dim=-1) <= xtol * (1 + x.norm(dim=-1)))
         x = torch.where(better[:, None], x_new, x)
         ev = ev.where(better, ev_new)
         c = torch.where(better, c_new, c)
         lam = torch.where(better, lam * damping.down, lam * damping.up).clamp(damping.lam_min, damping.lam_max)
-        stopped = stopped | (~better & (lam > damping.give_up))
+        if may_stop:
+            stopped |= ~better & (lam > damping.give_up)
         if record:
-            full = c_out.clone()
-            full[idx] = c
-            acc = torch.zeros(B, dtype=torch.bool)
-            acc[idx] = better
+            full, acc = c_out.clone(), torch.zeros(B, dtype=torch.bool)
+            full[idx], acc[idx] = c, better
             costs.append(full)
             accepted.append(acc)
     return Result(x_out, ev_out, c_out, trials, steps, jacobians, costs, accepted)
-
-
-def _without_jacobian(ev: Evaluation) -> Evaluation:
-    return Evaluation(ev.r, None, ev.extra)

@@ -180,14 +180,14 @@ class HybridSolver(Solver):
                 return evaluate(x, rows, None)
             return evaluate(x, rows, measure_all[rows] if current is None else current.extra["c"])
 
-        def done(x, ev: Evaluation, rows) -> tuple[torch.Tensor, Evaluation]:
+        def done(x, ev: Evaluation, rows) -> tuple[torch.Tensor, Evaluation | None]:
             e = ev.extra
             finished = (e["hole"] <= stop_tol) & ((e["c"] >= 0).all(-1) if use_safety else True)
             if use_safety and (finished & ~e["fresh"]).any():  # exact on clearances measured earlier: measure
                 redo = (finished & ~e["fresh"]).nonzero().flatten()  # them here, so a start found unclear goes on
                 ev.put(redo, evaluate(x[redo], rows[redo], measure_all[rows[redo]]))
-                finished = (e["hole"] <= stop_tol) & (e["c"] >= 0).all(-1)
-            return finished, ev
+                return (e["hole"] <= stop_tol) & (e["c"] >= 0).all(-1), ev
+            return finished, None
 
         out = least_squares(fun, self.project(q0[:, self.space.free].double()), damping=Damping(initial=s.damping),
                             max_trials=max_iters, done=done, groups=owner, project=self.project)
