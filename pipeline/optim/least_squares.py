@@ -40,14 +40,17 @@ class Evaluation:
     def put(self, index, other: Evaluation) -> None:
         """Rows ``index`` replaced by ``other`` (in place)."""
         self.r[index] = other.r
-        if self.J is not None and other.J is not None:
-            self.J[index] = other.J
+        if self.J is not None:
+            if other.J is None:
+                self.J = None  # stale rows otherwise: computed again when needed
+            else:
+                self.J[index] = other.J
         for k, v in self.extra.items():
             v[index] = other.extra[k]
 
     def where(self, mask: torch.Tensor, other: Evaluation) -> Evaluation:
-        """``other`` where ``mask (B,)``, else this; a Jacobian missing on either side is dropped
-        where it would be needed (then recomputed lazily)."""
+        """``other`` where ``mask (B,)``, else this. A Jacobian missing on a side the mask picks from
+        is dropped for every row (then computed again when a step needs it)."""
         def pick(a, b):
             return torch.where(mask.reshape(-1, *([1] * (a.ndim - 1))), b, a)
         if self.J is not None and other.J is not None:
