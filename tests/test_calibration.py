@@ -10,20 +10,16 @@ import torch
 from pipeline.calibrate import face_holes, residual_errors
 from pipeline.calibrate import run as run_calibrate
 from pipeline.calibration.compensation import INITS, NetworkParams, fit_compensator, training_pairs
-from pipeline.calibration.error_model import (
-    BoomWithErrors,
-    ErrorLevel,
-    draw_errors,
-    se3_exp,
-)
+from pipeline.calibration.error_model import BoomWithErrors, ErrorLevel, draw_errors
 from pipeline.calibration.identification import identifiable_basis, identify
 from pipeline.calibration.measurements import Measurements, Sensor, read_measurements, simulate, write_measurements
 from pipeline.calibration.model_file import load_model, save_model
-from pipeline.calibration.swarm import PSOParams, SSAParams, pso_minimize, rastrigin, sphere, ssa_minimize
 from pipeline.core.config import compose
 from pipeline.core.errors import InputError
 from pipeline.data.holes import HoleSampling
 from pipeline.geometry.collision import SafetyModel
+from pipeline.geometry.rotations import se3_exp
+from pipeline.optim.swarm import PSOParams, SSAParams, pso_minimize, rastrigin, sphere, ssa_minimize
 
 FIELD = ErrorLevel(0.2, 0.2, 5.0)
 DEG = math.pi / 180

@@ -11,7 +11,7 @@ from pipeline.data.holes import HoleSampling, sample_holes, sample_joints
 from pipeline.evaluation.metrics import solution_table
 from pipeline.geometry.collision import SAFETY_KINDS
 from pipeline.solvers.base import HoleTargets, Solver
-from pipeline.solvers.hybrid import STATUSES, HybridSettings, HybridSolver
+from pipeline.solvers.hybrid import STATUSES, Candidates, HybridSettings, HybridSolver
 
 
 # ------------------------------------------------------------------ Jacobians (autograd as the oracle)
@@ -116,6 +116,31 @@ def test_a_hole_whose_every_solution_hits_the_wall_is_unsafe(safety):
     assert float(res.clearances["wall"][0]) == pytest.approx(2.5 - 2.1 - 0.15 - 0.5, abs=1e-6)
 
 
+def _candidates(hole_mm, worst_clearance):
+    """Hand-built candidates: hole errors (mm) and one clearance value (m) for all four kinds."""
+    n = len(hole_mm)
+    return Candidates(q=torch.zeros(n, 8, dtype=torch.float64),
+                      hole_error=torch.tensor(hole_mm, dtype=torch.float64) / 1000,
+                      clearances=torch.tensor(worst_clearance, dtype=torch.float64)[:, None].expand(n, 4).clone(),
+                      iterations=torch.ones(n, dtype=torch.long), residual=torch.zeros(n, 6, dtype=torch.float64))
+
+
+def test_a_hole_reached_within_reach_tol_but_colliding_is_unsafe_not_unreachable(safety):
+    """docs/solve.md: unreachable means no start reached the pose within reach_tol_mm, whatever the
+    collisions; a start at 0.5 mm (tol 0.01, reach 1 mm) that collides reached it: unsafe."""
+    solver = HybridSolver(safety.boom, safety, None)
+    home = torch.zeros(1, 8, dtype=torch.float64)
+    cand = _candidates([0.5, 0.005, 0.5, 5.0, 5.0], [-0.1, -0.1, 0.1, -0.1, 0.1])
+    status, _ = solver.rank(cand)
+    assert [STATUSES[i] for i in status.tolist()] == ["unsafe", "unsafe", "inexact", "unreachable", "unreachable"]
+    # a hole whose candidates are a colliding one within reach and a clear one beyond it is unsafe
+    best, best_status = solver.best_of(_candidates([5.0, 0.5], [0.1, -0.1]), 1, home)
+    assert STATUSES[int(best_status[0])] == "unsafe" and float(best.hole_error[0]) == pytest.approx(0.5e-3)
+    # among unsafe candidates the exact one still wins over an inexact one with a smaller violation
+    best, best_status = solver.best_of(_candidates([0.5, 0.005], [-0.01, -0.2]), 1, home)
+    assert STATUSES[int(best_status[0])] == "unsafe" and float(best.hole_error[0]) == pytest.approx(0.005e-3)
+
+
 def test_every_hole_gets_exactly_one_status_and_nothing_is_dropped(safety):
     pose, _ = sample_holes(30, safety, HoleSampling(), seed=32)
     pose = torch.cat([pose, torch.tensor([[30.0, 0, 1.0, 33.3, 0, 1.0]], dtype=torch.float64)])
@@ -126,7 +151,7 @@ def test_every_hole_gets_exactly_one_status_and_nothing_is_dropped(safety):
         exact = table["hole_mm"][i] <= 0.01
         clear = not table["any_violation"][i]
         assert (status == "ok") == (exact and clear), (i, status)
-        assert status != "unsafe" or exact
+        assert status != "unsafe" or table["hole_mm"][i] <= 1.0  # reached within reach_tol_mm
     assert res.status[-1] == "unreachable"
 
 

@@ -21,14 +21,17 @@ Decisions the paper leaves open (config keys under ``calibration.network``):
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
 import torch
 from torch.func import jacfwd
 
-from pipeline.calibration.swarm import PSOParams, SSAParams, pso_minimize, ssa_minimize
 from pipeline.core.errors import ConfigError, InputError
+from pipeline.optim.least_squares import Damping, Evaluation, least_squares
+from pipeline.optim.scaling import MinMax
+from pipeline.optim.swarm import PSOParams, SSAParams, pso_minimize, ssa_minimize
 from pipeline.solvers.base import require
 
 DTYPE = torch.float64
@@ -82,26 +85,6 @@ class MLP:
 
 
 @dataclass
-class MinMax:
-    """``mapminmax``: each column of the fit data onto [-1, 1]."""
-
-    lo: torch.Tensor
-    hi: torch.Tensor
-
-    @classmethod
-    def fit(cls, x: torch.Tensor) -> MinMax:
-        lo, hi = x.min(0).values, x.max(0).values
-        flat = (hi - lo) < 1e-12  # a constant column (e.g. a locked joint) maps to 0
-        return cls(torch.where(flat, lo - 1.0, lo), torch.where(flat, lo + 1.0, hi))
-
-    def __call__(self, x: torch.Tensor) -> torch.Tensor:
-        return 2 * (x - self.lo) / (self.hi - self.lo) - 1
-
-    def inverse(self, y: torch.Tensor) -> torch.Tensor:
-        return self.lo + (y + 1) * (self.hi - self.lo) / 2
-
-
-@dataclass
 class Compensator:
     """A trained network: ``compensator(theta) -> q`` for joint vectors ``(B, n_joints)``."""
 
@@ -119,30 +102,19 @@ class Compensator:
 
 
 def _train_lm(mlp: MLP, w: torch.Tensor, X: torch.Tensor, Y: torch.Tensor, iterations: int, goal: float):
-    """MATLAB ``trainlm``: (J^T J + mu I) step, mu x0.1 on success, x10 on failure."""
-    flat = lambda v: mlp.forward(v[None], X)[0].reshape(-1)  # noqa: E731
+    """MATLAB ``trainlm``: (J^T J + mu I) step, mu x0.1 on success, x10 on failure; an epoch is one
+    Jacobian, and training ends when no mu up to 1e10 lowers the MSE (a minimum)."""
     y = Y.reshape(-1)
-    e = flat(w) - y
-    mse = float((e * e).mean())
-    mu, eye = 1e-3, torch.eye(w.numel(), dtype=DTYPE)
-    done = 0
-    for done in range(1, iterations + 1):
-        if mse <= goal:
-            done -= 1
-            break
-        J = jacfwd(flat)(w)
-        JtJ, g = J.T @ J, J.T @ e
-        while mu <= 1e10:
-            w_new = w - torch.linalg.solve(JtJ + mu * eye, g)
-            e_new = flat(w_new) - y
-            mse_new = float((e_new * e_new).mean())
-            if mse_new < mse:
-                w, e, mse, mu = w_new, e_new, mse_new, mu * 0.1
-                break
-            mu *= 10
-        else:
-            break  # no step lowers the error any more: a minimum
-    return w, mse, done
+
+    def errors(v: torch.Tensor) -> torch.Tensor:  # (n_weights,) -> (N * n_out,)
+        return mlp.forward(v[None], X)[0].reshape(-1) - y
+
+    out = least_squares(lambda v, rows, current: Evaluation(errors(v[0])[None]), w[None],
+                        jac=lambda v, rows: jacfwd(errors)(v[0])[None],
+                        damping=Damping(initial=1e-3, marquardt=False, down=0.1, lam_min=0.0, lam_max=math.inf,
+                                        give_up=1e10),
+                        max_steps=iterations, cost=lambda e: (e * e).mean(-1), cost_tol=goal)
+    return out.x[0], float(out.cost[0]), int(out.jacobians[0])
 
 
 def _train_gd(mlp: MLP, w: torch.Tensor, X: torch.Tensor, Y: torch.Tensor, iterations: int, goal: float,

@@ -26,6 +26,7 @@ import torch
 
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.geometry.kinematics import Boom
+from pipeline.geometry.rotations import se3_exp
 
 DTYPE = torch.float64
 COMPONENTS = ("rx", "ry", "rz", "tx", "ty", "tz")  # twist order: rotation (rad), then translation (m)
@@ -88,40 +89,6 @@ def draw_errors(boom: Boom, level: ErrorLevel, seed: int, distribution: str = "s
     else:
         unit = torch.randn(shape, generator=g, dtype=DTYPE)
     return unit * level.scales()
-
-
-def _skew(w: torch.Tensor) -> torch.Tensor:
-    zero = torch.zeros_like(w[..., 0])
-    return torch.stack([
-        torch.stack([zero, -w[..., 2], w[..., 1]], -1),
-        torch.stack([w[..., 2], zero, -w[..., 0]], -1),
-        torch.stack([-w[..., 1], w[..., 0], zero], -1),
-    ], -2)
-
-
-def se3_exp(xi: torch.Tensor) -> torch.Tensor:
-    """``exp`` of twists ``(..., 6)`` = (omega, v) as ``(..., 4, 4)`` transforms (Rodrigues).
-
-    Small angles use the Taylor series of the coefficients, and the closed form sees a guarded
-    angle, so values and derivatives stay finite at zero (where the result is exactly ``I``).
-    """
-    w, v = xi[..., :3], xi[..., 3:]
-    th2 = (w * w).sum(-1)
-    small = th2 < 1e-6
-    th2_safe = torch.where(small, torch.ones_like(th2), th2)
-    th = torch.sqrt(th2_safe)
-    a = torch.where(small, 1 - th2 / 6 + th2 * th2 / 120, torch.sin(th) / th)
-    b = torch.where(small, 0.5 - th2 / 24 + th2 * th2 / 720, (1 - torch.cos(th)) / th2_safe)
-    c = torch.where(small, 1 / 6 - th2 / 120 + th2 * th2 / 5040, (th - torch.sin(th)) / (th2_safe * th))
-    W = _skew(w)
-    W2 = W @ W
-    eye = torch.eye(3, dtype=xi.dtype, device=xi.device).expand_as(W)
-    R = eye + a[..., None, None] * W + b[..., None, None] * W2
-    V = eye + b[..., None, None] * W + c[..., None, None] * W2
-    t = (V @ v.unsqueeze(-1)).squeeze(-1)
-    bottom = torch.zeros(*xi.shape[:-1], 1, 4, dtype=xi.dtype, device=xi.device)
-    bottom[..., 0, 3] = 1.0
-    return torch.cat([torch.cat([R, t.unsqueeze(-1)], -1), bottom], -2)
 
 
 def axis_frames(boom: Boom, dtype=DTYPE, device=None) -> torch.Tensor:

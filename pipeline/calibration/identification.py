@@ -32,6 +32,7 @@ from pipeline.calibration.error_model import error_transforms as twist_transform
 from pipeline.calibration.measurements import Measurements
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.geometry.kinematics import Boom
+from pipeline.optim.least_squares import Damping, Evaluation, least_squares
 
 EQUATIONS_PER_MEASUREMENT = 5  # collar (3) + direction (2: a unit vector)
 
@@ -241,32 +242,14 @@ def identify(boom: Boom, meas: Measurements, basis: Basis, weights: Weights = We
             f"the weakest combination involves {names}. Measure more poses that move joints {joints} "
             "(distinct joint vectors, each joint over its range)"
         )
-    cost = float(r @ r)
-    history = [cost]
-    lam = 1e-3
-    iterations = 0
-    for it in range(1, max_iters + 1):
-        iterations = it
-        JtJ, g = J.T @ J, J.T @ r
-        # Marquardt scaling: damping proportional to diag(J^T J) treats rad and m alike
-        step = torch.linalg.solve(JtJ + lam * torch.diag(torch.diagonal(JtJ)), -g)
-        x_new = x + step
-        r_new = problem.residual(x_new)
-        cost_new = float(r_new @ r_new)
-        if not math.isfinite(cost_new):
-            lam *= 10
-            continue
-        if cost_new < cost:
-            converged = cost - cost_new <= 1e-12 * cost or step.norm() <= 1e-15 * (1 + x.norm())
-            x, r, cost, lam = x_new, r_new, cost_new, max(lam * 0.1, 1e-12)
-            history.append(cost)
-            if converged:
-                break
-            J = problem.jacobian(x)
-        else:
-            lam *= 10
-            if lam > 1e12:
-                break
+    # one problem (a batch of one row); Marquardt scaling treats rad and m alike; the Jacobian is
+    # recomputed only at accepted points; stop once a step gains (almost) nothing
+    out = least_squares(lambda x, rows, current: Evaluation(problem.residual(x[0])[None]), x[None],
+                        jac=lambda x, rows: problem.jacobian(x[0])[None], initial=Evaluation(r[None], J[None]),
+                        damping=Damping(initial=1e-3, floor=0.0, down=0.1, lam_max=math.inf, give_up=1e12),
+                        max_trials=max_iters, ftol=1e-12, xtol=1e-15, record=True)
+    x, iterations = out.x[0], int(out.trials[0])
+    history = [float(r @ r)] + [float(c[0]) for c, a in zip(out.costs, out.accepted, strict=True) if a[0]]
     if not torch.isfinite(x).all():
         raise InputError(f"{meas.source}: identification diverged (non-finite parameters)")
     twists = problem.twists(x)

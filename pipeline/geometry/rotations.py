@@ -58,3 +58,28 @@ def align(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     K = skew(v)
     eye = torch.eye(3, dtype=v.dtype, device=v.device).expand_as(K)
     return eye + K + (K @ K) / (1 + c)[..., None, None]
+
+
+def se3_exp(xi: torch.Tensor) -> torch.Tensor:
+    """``exp`` of twists ``(..., 6)`` = (omega, v) as ``(..., 4, 4)`` transforms (Rodrigues).
+
+    Small angles use the Taylor series of the coefficients, and the closed form sees a guarded
+    angle, so values and derivatives stay finite at zero (where the result is exactly ``I``).
+    """
+    w, v = xi[..., :3], xi[..., 3:]
+    th2 = (w * w).sum(-1)
+    small = th2 < 1e-6
+    th2_safe = torch.where(small, torch.ones_like(th2), th2)
+    th = torch.sqrt(th2_safe)
+    a = torch.where(small, 1 - th2 / 6 + th2 * th2 / 120, torch.sin(th) / th)
+    b = torch.where(small, 0.5 - th2 / 24 + th2 * th2 / 720, (1 - torch.cos(th)) / th2_safe)
+    c = torch.where(small, 1 / 6 - th2 / 120 + th2 * th2 / 5040, (th - torch.sin(th)) / (th2_safe * th))
+    W = skew(w)
+    W2 = W @ W
+    eye = torch.eye(3, dtype=xi.dtype, device=xi.device).expand_as(W)
+    R = eye + a[..., None, None] * W + b[..., None, None] * W2
+    V = eye + b[..., None, None] * W + c[..., None, None] * W2
+    t = (V @ v.unsqueeze(-1)).squeeze(-1)
+    bottom = torch.zeros(*xi.shape[:-1], 1, 4, dtype=xi.dtype, device=xi.device)
+    bottom[..., 0, 3] = 1.0
+    return torch.cat([torch.cat([R, t.unsqueeze(-1)], -1), bottom], -2)

@@ -16,7 +16,8 @@ as a constraint, and an honest status for every hole.
 
    * ``ok``: hole-seeking error <= ``tol_mm`` and every clearance >= 0 (the safety distances hold);
    * ``inexact``: clear, but the error is between ``tol_mm`` and ``reach_tol_mm``;
-   * ``unsafe``: exact, but every exact solution found violates a safety distance;
+   * ``unsafe``: reached within ``reach_tol_mm`` (exact, or inexact), but every such solution found
+     violates a safety distance;
    * ``unreachable``: no start reached the pose within ``reach_tol_mm``, whatever the collisions.
 
    Every hole keeps its best joints and their clearances; nothing is dropped.
@@ -37,6 +38,7 @@ from pipeline.core.errors import ConfigError, InputError
 from pipeline.core.settings import rule
 from pipeline.geometry.collision import SAFETY_KINDS, SafetyModel
 from pipeline.geometry.kinematics import pose_errors
+from pipeline.optim.least_squares import Damping, Evaluation, least_squares, projector
 from pipeline.solvers.base import HoleTargets, JointSpace, Solver, SolveResult, Targets
 
 STATUSES = ("ok", "inexact", "unsafe", "unreachable")
@@ -111,17 +113,13 @@ class HybridSolver(Solver):
         self.space = JointSpace(boom)
         span = self.space.upper - self.space.lower
         self.wraps = self.space.revolute & (span >= 2 * math.pi - 1e-9)  # full-turn joints
+        self.project = projector(self.space.lower, self.space.upper, self.wraps)
         # random starts: within the working box (the postures rigs use) where given, else the full ranges
         lo, hi = start_box if start_box is not None else (self.space.full(self.space.lower[None])[0],
                                                           self.space.full(self.space.upper[None])[0])
         self.start_lo, self.start_hi = lo[self.space.free].double(), hi[self.space.free].double()
 
     # ------------------------------------------------------------------ one LM run per start
-    def project(self, x: torch.Tensor) -> torch.Tensor:
-        lo, hi = self.space.lower.to(x), self.space.upper.to(x)
-        wrapped = torch.remainder(x - lo, 2 * math.pi) + lo
-        return torch.where(self.wraps.to(x.device), wrapped, torch.maximum(torch.minimum(x, hi), lo))
-
     def _clearances(self, frames: torch.Tensor) -> torch.Tensor:
         values = self.safety.clearances_from_frames(frames)
         return torch.stack([values[k] for k in SAFETY_KINDS], dim=-1)
@@ -169,73 +167,55 @@ class HybridSolver(Solver):
         s = self.s
         max_iters = s.max_iters if max_iters is None else max_iters
         stop_tol = 1e-2 * s.tol_mm / 1000  # iterate well below the status tolerance: converged, not borderline
-        N, n = len(q0), self.space.n
-        x_out = self.project(q0[:, self.space.free].double())
-        r_out = torch.empty(N, 6, dtype=torch.float64)
-        c_out = torch.empty(N, len(SAFETY_KINDS), dtype=torch.float64)
-        measured_out = torch.zeros(N, dtype=torch.bool)
-        iters = torch.zeros(N, dtype=torch.long)
-        idx = torch.arange(N)
-        x, tgt = x_out, target.double()
-        lam = torch.full((N,), s.damping, dtype=torch.float64)
-        start = torch.full((N, len(SAFETY_KINDS)), -math.inf, dtype=torch.float64) if use_safety else None
-        r, J, hole, c, fresh = self._rows(x, tgt, start)
-        cost = (r * r).sum(-1)
-        eye = torch.eye(n, dtype=torch.float64)
-        for it in range(max_iters + 1):
-            done = (hole <= stop_tol) & ((c >= 0).all(-1) if use_safety else True)
-            if use_safety and (done & ~fresh).any():  # exact on clearances measured earlier: measure them here,
-                rows = (done & ~fresh).nonzero().flatten()  # with their rows, so a start found unclear goes on
-                r[rows], J[rows], hole[rows], c[rows], fresh[rows] = self._rows(x[rows], tgt[rows], start[:len(rows)])
-                cost[rows] = (r[rows] * r[rows]).sum(-1)
-                done = (hole <= stop_tol) & (c >= 0).all(-1)
-            if done.any() or it == max_iters:
-                fin = done if it < max_iters else torch.ones_like(done)
-                if owner is not None and it < max_iters:  # the siblings of a start that is done stop too
-                    served = torch.zeros(int(owner.max()) + 1, dtype=torch.bool)
-                    served[owner[idx[done]]] = True
-                    fin = fin | served[owner[idx]]
-                x_out[idx[fin]], r_out[idx[fin]] = x[fin], r[fin, :6]
-                c_out[idx[fin]], measured_out[idx[fin]] = c[fin], fresh[fin]
-                keep = ~fin
-                if not keep.any():
-                    break
-                idx, x, tgt, lam, r, J, hole, c, fresh, cost = (
-                    t[keep] for t in (idx, x, tgt, lam, r, J, hole, c, fresh, cost))
-            JtJ = J.transpose(1, 2) @ J
-            # Marquardt scaling: damping proportional to the diagonal treats metres and radians alike
-            A = JtJ + lam[:, None, None] * (torch.diagonal(JtJ, dim1=1, dim2=2).unsqueeze(-1) * eye + 1e-9 * eye)
-            step = torch.linalg.solve(A, -(J.transpose(1, 2) @ r.unsqueeze(-1))).squeeze(-1)
-            x_new = self.project(x + step)
-            r_new, J_new, hole_new, c_new, fresh_new = self._rows(x_new, tgt, c if use_safety else None)
-            cost_new = (r_new * r_new).sum(-1)
-            better = cost_new < cost
-            b1, b2 = better[:, None], better[:, None, None]
-            x, r, J = torch.where(b1, x_new, x), torch.where(b1, r_new, r), torch.where(b2, J_new, J)
-            hole, c, fresh = torch.where(better, hole_new, hole), torch.where(b1, c_new, c), torch.where(
-                better, fresh_new, fresh)
-            cost = torch.where(better, cost_new, cost)
-            lam = torch.where(better, lam * 0.3, lam * 10.0).clamp(1e-12, 1e8)
-            iters[idx] += 1
-        stale = (~measured_out).nonzero().flatten()
+        tgt = target.double()
+        measure_all = torch.full((len(q0), len(SAFETY_KINDS)), -math.inf, dtype=torch.float64)
+
+        def evaluate(x, rows, c_prev) -> Evaluation:
+            r, J, hole, c, fresh = self._rows(x, tgt[rows], c_prev)
+            return Evaluation(r, J, {"hole": hole, "c": c, "fresh": fresh})
+
+        def fun(x, rows, current: Evaluation | None) -> Evaluation:
+            # at the start every clearance is measured; later the trial reuses the current point's clearances
+            if not use_safety:
+                return evaluate(x, rows, None)
+            return evaluate(x, rows, measure_all[rows] if current is None else current.extra["c"])
+
+        def done(x, ev: Evaluation, rows) -> tuple[torch.Tensor, Evaluation | None]:
+            e = ev.extra
+            finished = (e["hole"] <= stop_tol) & ((e["c"] >= 0).all(-1) if use_safety else True)
+            if use_safety and (finished & ~e["fresh"]).any():  # exact on clearances measured earlier: measure
+                redo = (finished & ~e["fresh"]).nonzero().flatten()  # them here, so a start found unclear goes on
+                ev.put(redo, evaluate(x[redo], rows[redo], measure_all[rows[redo]]))
+                return (e["hole"] <= stop_tol) & (e["c"] >= 0).all(-1), ev
+            return finished, None
+
+        out = least_squares(fun, self.project(q0[:, self.space.free].double()), damping=Damping(initial=s.damping),
+                            max_trials=max_iters, done=done, groups=owner, project=self.project)
+        x_out, extra = out.x, out.evaluation.extra
+        r_out, c_out = out.evaluation.r[:, :6], extra["c"]
+        stale = (~extra["fresh"]).nonzero().flatten()
         if len(stale):  # the answer's own clearances, wherever the loop reused older ones
             c_out[stale] = self._clearances(self.boom.frames(self.space.full(x_out[stale])))
         hole_out = 0.5 * (r_out[:, :3].norm(dim=-1) + r_out[:, 3:].norm(dim=-1))
-        return Candidates(self.space.full(x_out), hole_out, c_out, iters, r_out)
+        return Candidates(self.space.full(x_out), hole_out, c_out, out.trials, r_out)
 
     # ------------------------------------------------------------------ statuses
     def rank(self, cand: Candidates, reference: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Status index (into STATUSES) and a score to minimise, per candidate: ok prefers the
         largest clearance (or, with ``prefer: start``, the least motion from ``reference``, in
-        fractions of each joint's range), inexact the smallest error, unsafe the smallest violation."""
+        fractions of each joint's range), inexact the smallest error, unsafe an exact one first and then
+        the smallest violation, unreachable the smallest error."""
         tol, reach = self.s.tol_mm / 1000, self.s.reach_tol_mm / 1000
         worst = cand.clearances.min(dim=-1).values
-        exact, clear = cand.hole_error <= tol, worst >= 0
-        status = torch.full_like(cand.iterations, 3)
-        status = torch.where(exact & ~clear, torch.full_like(status, 2), status)
-        status = torch.where(clear & (cand.hole_error <= reach), torch.full_like(status, 1), status)
+        exact, clear, reached = cand.hole_error <= tol, worst >= 0, cand.hole_error <= reach
+        status = torch.full_like(cand.iterations, 3)  # unreachable: not within reach_tol, whatever the collisions
+        # reached within reach_tol but colliding is unsafe, not unreachable (the pose can be reached)
+        status = torch.where(reached & ~clear, torch.full_like(status, 2), status)
+        status = torch.where(clear & reached, torch.full_like(status, 1), status)
         status = torch.where(exact & clear, torch.full_like(status, 0), status)
-        key = torch.where((status == 0) | (status == 2), -worst.clamp(-10, 10), cand.hole_error.clamp(max=1e3))
+        # among unsafe candidates an exact one first (as before), then the smallest violation
+        key = torch.where(status == 0, -worst.clamp(-10, 10), cand.hole_error.clamp(max=1e3))
+        key = torch.where(status == 2, -worst.clamp(-10, 10) + 100.0 * (~exact).double(), key)
         if self.s.prefer == "start" and reference is not None:
             span = self.space.upper - self.space.lower
             motion = (((cand.q - reference)[:, self.space.free] / span) ** 2).sum(-1)

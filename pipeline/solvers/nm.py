@@ -19,6 +19,7 @@ import torch
 
 from pipeline.core.errors import ConfigError
 from pipeline.geometry.kinematics import Boom
+from pipeline.optim.least_squares import Damping, Evaluation, least_squares
 from pipeline.solvers.base import JointSpace, Solver, Targets, tool_transform
 
 
@@ -91,32 +92,13 @@ class NMSolver(Solver):
 
     def _descend(self, x: torch.Tensor, targets: Targets) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Run LM from ``x``; returns the final point, its cost ``|r|^2`` and iterations used."""
-        B, n = x.shape
-        lam = torch.full((B,), self.damping, dtype=x.dtype)
-        iters = torch.zeros(B, dtype=torch.long)
-        eye = torch.eye(n, dtype=x.dtype)
-        r, J = self.jacobian(x, targets)
-        cost = (r * r).sum(-1)
-        for _ in range(self.max_iters):
-            active = cost > self.tol**2
-            if not active.any():
-                break
-            JtJ = J.transpose(1, 2) @ J
-            # Marquardt scaling: damping proportional to the diagonal keeps prismatic (m) and
-            # revolute (rad) joints on comparable footing.
-            A = JtJ + lam[:, None, None] * (torch.diagonal(JtJ, dim1=1, dim2=2).unsqueeze(-1) * eye + 1e-9 * eye)
-            step = torch.linalg.solve(A, -(J.transpose(1, 2) @ r.unsqueeze(-1))).squeeze(-1)
-            x_new = self.space.clamp(x + step)
-            r_new, J_new = self.jacobian(x_new, targets)
-            cost_new = (r_new * r_new).sum(-1)
-            better = active & (cost_new < cost)
-            x = torch.where(better[:, None], x_new, x)
-            r = torch.where(better[:, None], r_new, r)
-            J = torch.where(better[:, None, None], J_new, J)
-            cost = torch.where(better, cost_new, cost)
-            lam = torch.where(better, lam * 0.3, torch.where(active, lam * 10.0, lam)).clamp(1e-12, 1e8)
-            iters += active.long()
-        return x, cost, iters
+        def fun(x: torch.Tensor, rows: torch.Tensor, current: Evaluation | None) -> Evaluation:
+            return Evaluation(*self.jacobian(x, targets.subset(rows)))
+
+        # Marquardt scaling (the default) keeps prismatic (m) and revolute (rad) joints on comparable footing
+        out = least_squares(fun, x, damping=Damping(initial=self.damping), max_trials=self.max_iters,
+                            cost_tol=self.tol**2, project=self.space.clamp)
+        return out.x, out.cost, out.trials
 
     def _solve(self, targets: Targets) -> tuple[torch.Tensor, torch.Tensor]:
         B = len(targets)

@@ -17,7 +17,6 @@ weights both 0.5 but does not state its units, so SI units are used here (decide
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -25,11 +24,15 @@ import torch
 
 from pipeline.core.errors import ConfigError
 from pipeline.geometry.kinematics import Boom
+from pipeline.optim.swarm import PSOParams, Swarm
 from pipeline.solvers.base import JointSpace, Solver, Targets, require, tool_transform
 
 
 @dataclass(frozen=True)
-class PSOParams:
+class SwarmIKSettings:
+    """The PSO solver's settings (``solvers.<pso|eopso|ceopso>``): the swarm's (:class:`PSOParams`,
+    flat keys here) and the IK's own (velocity limits per joint kind, fitness weights, tolerances, seed)."""
+
     population: int = 800
     iterations: int = 100
     w_min: float = 0.6
@@ -51,14 +54,16 @@ class PSOParams:
     seed: int = 0
 
     def __post_init__(self):
-        require({
-            "population >= 2": self.population >= 2,
-            "iterations >= 1": self.iterations >= 1,
-            "0 <= w_min <= w_max": 0 <= self.w_min <= self.w_max,
-            "v_max > 0": self.v_max_revolute > 0 and self.v_max_prismatic > 0,
-            "0 <= p0 <= 1 and 0 <= pr <= 1": 0 <= self.p0 <= 1 and 0 <= self.pr <= 1,
-            "0 < elite_frac <= 1": 0 < self.elite_frac <= 1,
-        }, "PSO parameters", self)
+        require({"v_max > 0": self.v_max_revolute > 0 and self.v_max_prismatic > 0}, "PSO parameters", self)
+        self.swarm  # noqa: B018 -- the swarm's own checks
+
+    @property
+    def swarm(self) -> PSOParams:
+        """Paper 002's swarm: one random factor per particle, velocity lost on a bound."""
+        return PSOParams(population=self.population, iterations=self.iterations, w_max=self.w_max, w_min=self.w_min,
+                         c1=self.c1, c2=self.c2, per_coordinate=False, stop_at_bounds=True,
+                         opposition=self.opposition, elite_frac=self.elite_frac, crossover=self.crossover, p0=self.p0,
+                         pr=self.pr, adaptive_inertia=self.adaptive_inertia)
 
 
 PRESETS = {
@@ -68,10 +73,10 @@ PRESETS = {
 }
 
 
-def params_for(variant: str, overrides: Mapping | None = None) -> PSOParams:
+def params_for(variant: str, overrides: Mapping | None = None) -> SwarmIKSettings:
     if variant not in PRESETS:
         raise ConfigError(f"PSO variant {variant!r}: expected one of {sorted(PRESETS)}")
-    return PSOParams(**{**PRESETS[variant], **dict(overrides or {})})
+    return SwarmIKSettings(**{**PRESETS[variant], **dict(overrides or {})})
 
 
 @dataclass
@@ -89,7 +94,10 @@ class SwarmTrace:
 
 
 class ParticleSwarm(Solver):
-    def __init__(self, boom: Boom, params: PSOParams, locks: Mapping[str, float] | None = None, name: str = "pso"):
+    """Paper 002's PSO family as an IK solver: one :class:`Swarm` per target over the joint ranges."""
+
+    def __init__(self, boom: Boom, params: SwarmIKSettings, locks: Mapping[str, float] | None = None,
+                 name: str = "pso"):
         super().__init__(boom)
         self.p = params
         self.space = JointSpace(boom, locks)
@@ -101,19 +109,17 @@ class ParticleSwarm(Solver):
         return self.p.w_pos * err["position"] + self.p.w_ori * err["orientation"], err
 
     def _solve(self, targets: Targets) -> tuple[torch.Tensor, torch.Tensor]:
-        p = self.p
-        swarm = _Swarm.start(self, targets, torch.Generator().manual_seed(p.seed))
-        trace = [swarm.best_errors()]
+        p, space = self.p, self.space
+        vmax = torch.where(space.revolute, p.v_max_revolute, p.v_max_prismatic).double()
+        vmax = torch.minimum(vmax, (space.upper - space.lower).clamp_min(1e-12))
+        swarm = Swarm(lambda x: self.fitness(x, targets)[0], space.lower, space.upper, vmax, len(targets), p.swarm,
+                      torch.Generator().manual_seed(p.seed))
+        trace = [self.best_errors(swarm, targets)]
         iters = torch.full((len(targets),), p.iterations, dtype=torch.long)
         done = torch.zeros(len(targets), dtype=torch.bool)
         for t in range(1, p.iterations + 1):
-            swarm.move(self.inertia(swarm, t))
-            if p.opposition:
-                swarm.elite_opposition()
-            if p.crossover:
-                swarm.crossover(t)
-            swarm.update_best()
-            trace.append(swarm.best_errors())
+            swarm.step(t)
+            trace.append(self.best_errors(swarm, targets))
             if p.tol_pos > 0 and p.tol_ori > 0:
                 reached = ~done & (trace[-1][0] <= p.tol_pos) & (trace[-1][1] <= p.tol_ori)
                 iters = torch.where(reached, torch.full_like(iters, t), iters)
@@ -121,105 +127,9 @@ class ParticleSwarm(Solver):
                 if done.all():
                     break
         self.trace = SwarmTrace(torch.stack([e[0] for e in trace]), torch.stack([e[1] for e in trace]))
-        return self.space.full(swarm.gbest), iters
+        return space.full(swarm.gbest), iters
 
-    def inertia(self, swarm: _Swarm, t: int):
-        """Eqs. 17-18 (adaptive: from the share of particles that improved) or linearly decreasing."""
-        p = self.p
-        if p.adaptive_inertia:
-            return ((p.w_max - p.w_min) * swarm.improved.double().mean(dim=1) + p.w_min)[:, None, None]
-        return p.w_max - (p.w_max - p.w_min) * (t - 1) / max(p.iterations - 1, 1)
-
-
-def keep_better(x: torch.Tensor, f: torch.Tensor, x_new: torch.Tensor, f_new: torch.Tensor):
-    """Element-wise the better of two candidate sets ``(..., n)`` by fitness ``(...)``; also which won."""
-    take = f_new < f
-    return torch.where(take[..., None], x_new, x), torch.where(take, f_new, f), take
-
-
-@dataclass
-class _Swarm:
-    """State of one swarm per target: ``(targets, particles, joints)`` tensors and the steps of
-    eqs. 12-21 on them."""
-
-    solver: ParticleSwarm
-    targets: Targets
-    g: torch.Generator
-    x: torch.Tensor
-    v: torch.Tensor
-    pbest: torch.Tensor
-    pbest_f: torch.Tensor
-    improved: torch.Tensor
-    pc: torch.Tensor  # eq. 19: each particle carries its own crossover probability
-    vmax: torch.Tensor
-    gbest: torch.Tensor
-
-    @classmethod
-    def start(cls, solver: ParticleSwarm, targets: Targets, g: torch.Generator) -> _Swarm:
-        p, space = solver.p, solver.space
-        B, P, n = len(targets), p.population, space.n
-        vmax = torch.where(space.revolute, p.v_max_revolute, p.v_max_prismatic).double()
-        vmax = torch.minimum(vmax, (space.upper - space.lower).clamp_min(1e-12))
-        x = space.uniform((B, P), g)
-        v = (2 * torch.rand(B, P, n, generator=g, dtype=torch.float64) - 1) * vmax
-        f, _ = solver.fitness(x, targets)
-        swarm = cls(solver, targets, g, x, v, x.clone(), f.clone(), torch.zeros(B, P, dtype=torch.bool),
-                    torch.full((B, P), p.p0, dtype=torch.float64), vmax, x[:, 0])
-        swarm.update_best()
-        return swarm
-
-    def rand(self, *shape: int) -> torch.Tensor:
-        return torch.rand(*shape, generator=self.g, dtype=torch.float64)
-
-    def move(self, w) -> None:
-        """Eqs. 12-13 with the velocity limit; a particle leaving the ranges is put back on the bound
-        with its velocity there zeroed. Then each personal best keeps the better point."""
-        p, space = self.solver.p, self.solver.space
-        B, P, _ = self.x.shape
-        v = (w * self.v + p.c1 * self.rand(B, P, 1) * (self.pbest - self.x)
-             + p.c2 * self.rand(B, P, 1) * (self.gbest[:, None] - self.x))
-        v = torch.maximum(torch.minimum(v, self.vmax), -self.vmax)
-        x = self.x + v
-        out = (x < space.lower) | (x > space.upper)
-        self.x, self.v = space.clamp(x), torch.where(out, torch.zeros_like(v), v)
-        f, _ = self.solver.fitness(self.x, self.targets)
-        self.pbest, self.pbest_f, self.improved = keep_better(self.pbest, self.pbest_f, self.x, f)
-
-    def elite_opposition(self) -> None:
-        """Eq. 14 on the elite personal bests, within the dynamic bounds of the elite group; an
-        opposite point outside the joint ranges is redrawn inside those bounds."""
-        p, space = self.solver.p, self.solver.space
-        B, P, n = self.x.shape
-        n_elite = max(1, math.ceil(p.elite_frac * P))
-        elite_f, idx = self.pbest_f.topk(n_elite, dim=1, largest=False)
-        elite = torch.gather(self.pbest, 1, idx[..., None].expand(-1, -1, n))
-        a, b = elite.min(dim=1, keepdim=True).values, elite.max(dim=1, keepdim=True).values
-        opp = self.rand(B, n_elite, 1) * (a + b) - elite
-        outside = (opp < space.lower) | (opp > space.upper)
-        opp = torch.where(outside, a + self.rand(B, n_elite, n) * (b - a), opp)
-        opp_f, _ = self.solver.fitness(opp, self.targets)
-        new_pb, new_f, take = keep_better(elite, elite_f, opp, opp_f)
-        self.pbest = self.pbest.scatter(1, idx[..., None].expand(-1, -1, n), new_pb)
-        self.pbest_f = self.pbest_f.scatter(1, idx, new_f)
-        self.improved = self.improved.scatter(1, idx, torch.gather(self.improved, 1, idx) | take)
-
-    def crossover(self, t: int) -> None:
-        """Eqs. 20-21 update each particle's probability, eq. 15 crosses it with its personal best,
-        eq. 16 keeps the better."""
-        p = self.solver.p
-        B, P, n = self.x.shape
-        alpha = p.p0 * (1 - t / p.iterations)
-        self.pc = torch.where(self.rand(B, P) < p.pr, self.rand(B, P), alpha * self.pc)
-        child = torch.where(self.rand(B, P, n) < self.pc[..., None], self.x, self.pbest)
-        child_f, _ = self.solver.fitness(child, self.targets)
-        self.pbest, self.pbest_f, take = keep_better(self.pbest, self.pbest_f, child, child_f)
-        self.improved = self.improved | take
-
-    def update_best(self) -> None:
-        i = self.pbest_f.argmin(dim=1)
-        self.gbest = self.pbest[torch.arange(len(i)), i]
-
-    def best_errors(self) -> tuple[torch.Tensor, torch.Tensor]:
+    def best_errors(self, swarm: Swarm, targets: Targets) -> tuple[torch.Tensor, torch.Tensor]:
         """Position and orientation error of each target's global best."""
-        _, err = self.solver.fitness(self.gbest.unsqueeze(1), self.targets)
+        _, err = self.fitness(swarm.gbest.unsqueeze(1), targets)
         return err["position"][:, 0], err["orientation"][:, 0]

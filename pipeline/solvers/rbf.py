@@ -22,21 +22,8 @@ import torch
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.geometry.kinematics import Boom
 from pipeline.geometry.rotations import align, rpy, skew
+from pipeline.optim.scaling import MinMax
 from pipeline.solvers.base import FrameTargets, HoleTargets, JointSpace, Solver, Targets, tool_transform
-
-
-class MinMax:
-    """``mapminmax``: each column to [-1, 1] over the training data (constant columns to 0)."""
-
-    def __init__(self, data: torch.Tensor):
-        self.lo, self.hi = data.min(dim=0).values, data.max(dim=0).values
-        self.span = torch.where(self.hi > self.lo, self.hi - self.lo, torch.ones_like(self.hi))
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return 2 * (x - self.lo) / self.span - 1
-
-    def inverse(self, y: torch.Tensor) -> torch.Tensor:
-        return self.lo + (y + 1) * self.span / 2
 
 
 class ExactRBF:
@@ -52,7 +39,7 @@ class ExactRBF:
             raise ConfigError(f"rbf.reg = {reg}: must be >= 0")
         if X.shape[0] != Y.shape[0]:
             raise InputError(f"RBF: {X.shape[0]} inputs but {Y.shape[0]} outputs")
-        self.x_map, self.y_map = MinMax(X), MinMax(Y)
+        self.x_map, self.y_map = MinMax.fit(X), MinMax.fit(Y)
         self.centres = self.x_map.forward(X.double())
         self.b = math.sqrt(math.log(2.0)) / spread  # newrbe: radbas(b * dist) = 0.5 at dist = spread
         Phi = self.kernel(self.centres)
