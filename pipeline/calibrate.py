@@ -24,6 +24,7 @@ import pandas as pd
 import torch
 from omegaconf import DictConfig, OmegaConf
 
+from pipeline.assembly.build import build_safety
 from pipeline.calibration.compensation import INITS, NetworkParams, fit_compensator, training_pairs
 from pipeline.calibration.error_model import BoomWithErrors, ErrorLevel, draw_errors
 from pipeline.calibration.identification import Basis, Weights, identifiable_basis, identify
@@ -31,7 +32,6 @@ from pipeline.calibration.ik import solve_holes
 from pipeline.calibration.measurements import Measurements, Sensor, read_measurements, simulate
 from pipeline.calibration.model_file import save_model
 from pipeline.calibration.swarm import PSOParams, SSAParams
-from pipeline.core.build import build_safety
 from pipeline.core.config import project_path
 from pipeline.core.device import configure_process
 from pipeline.core.errors import ConfigError, InputError

@@ -15,7 +15,7 @@ import hydra
 import yaml
 from omegaconf import DictConfig
 
-from pipeline.core.build import build_safety, hole_sampling
+from pipeline.assembly.build import build_safety, hole_sampling
 from pipeline.core.config import CONF_DIR
 from pipeline.core.device import configure_process
 from pipeline.core.io import write_text

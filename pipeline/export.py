@@ -35,7 +35,7 @@ import hydra
 import torch
 from omegaconf import DictConfig
 
-from pipeline.core.build import build_safety, load_boom
+from pipeline.assembly.build import build_safety, load_boom
 from pipeline.core.config import project_path
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import atomic_write, write_json

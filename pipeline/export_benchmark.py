@@ -34,7 +34,7 @@ import torch
 from omegaconf import DictConfig
 
 from pipeline import export
-from pipeline.core.build import load_boom
+from pipeline.assembly.build import load_boom
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import write_csv, write_text

@@ -24,17 +24,18 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from pipeline.core.build import build_safety, load_boom
+from pipeline.assembly.build import build_safety, load_boom
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import configure_process
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import require_writable, save_figure, write_csv, write_json
 from pipeline.core.settings import coerce, parse, rule
 from pipeline.data.holes import joint_box
-from pipeline.data.plans import COLLAR, read_plan
-from pipeline.data.solutions import CLEARANCE_COLUMNS, solution_frame, status_counts
 from pipeline.evaluation.plots import solution_figure
 from pipeline.learning.models import check_network_fits, load_checkpoint
+from pipeline.plans.model import COLLAR
+from pipeline.plans.read import read_plan
+from pipeline.plans.solutions import CLEARANCE_COLUMNS, solution_frame, status_counts
 from pipeline.solvers.base import HoleTargets, NetworkSolver
 from pipeline.solvers.hybrid import HybridSettings, HybridSolver
 from pipeline.tracking.runs import TrackingSettings, load_logged_network, stage_run

@@ -21,7 +21,7 @@ import pandas as pd
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from pipeline.core.build import build_safety, hole_sampling
+from pipeline.assembly.build import build_safety, hole_sampling
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import configure_process, resolve_device
 from pipeline.core.io import publish, require_writable, write_csv, write_json

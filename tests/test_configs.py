@@ -3,8 +3,8 @@
 import pytest
 from omegaconf import OmegaConf
 
+from pipeline.assembly.build import build_safety, hole_sampling
 from pipeline.benchmark import BenchmarkSettings
-from pipeline.core.build import build_safety, hole_sampling
 from pipeline.core.config import CONF_DIR, compose
 from pipeline.core.errors import ConfigError
 from pipeline.core.settings import parse
@@ -41,7 +41,7 @@ def test_every_experiment_composes_and_validates(experiment):
 
 @pytest.mark.parametrize("boom", sorted(p.stem for p in (CONF_DIR / "boom").glob("*.yaml")))
 def test_every_boom_config_loads(boom):
-    from pipeline.core.build import load_boom
+    from pipeline.assembly.build import load_boom
 
     assert load_boom(boom).n_joints >= 6
 

@@ -9,7 +9,7 @@ import torch
 from mlflow.tracking import MlflowClient
 
 from pipeline import benchmark, generate, paper_baselines, train
-from pipeline.core.build import load_boom
+from pipeline.assembly.build import load_boom
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.geometry.rotations import align, rotation_angle, rpy
 from pipeline.solvers import build_solver
