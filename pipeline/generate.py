@@ -28,6 +28,7 @@ from pipeline.data.holes import joint_box
 from pipeline.data.tables import POSE_COLUMNS
 from pipeline.evaluation.plots import collar_clouds
 from pipeline.learning.supervised_set import home_branch_labels
+from pipeline.solvers.labels import home_branch
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
@@ -66,10 +67,12 @@ def run(cfg: DictConfig) -> dict:
     box = None if box is None else as_dict(box)
     joint_box(safety.boom, box)  # a bad box fails here, before any sampling
     data = project_path(cfg.paths.data)
+    branch = home_branch(safety)  # the labelling solver, injected (learning sits below the solvers)
     with stage_run(tracking, "generate", {"stage": "generate"}) as mlrun:
         mlrun.log_params({k: as_dict(cfg[k]) for k in ("holes", "safety", "tunnel")})
         tables, meta = build_hole_sets(safety, hole_sampling(cfg.holes), unsup.size, unsup.seed, test.size,
-                                       list(test.seeds), sup_sets, box, lambda q: home_branch_labels(safety, q))
+                                       list(test.seeds), sup_sets, box,
+                                       lambda q: home_branch_labels(safety.boom, q, branch))
         meta["config"] = {k: as_dict(cfg[k]) for k in ("boom", "tunnel", "safety", "holes")}
         fig = collar_clouds({"Omega_sup": tables["sup.parquet"][POSE_COLUMNS].to_numpy(),
                              "Omega_unsup": tables["train.parquet"][POSE_COLUMNS].to_numpy()}, safety.tunnel,
