@@ -42,11 +42,10 @@ def run(cfg: DictConfig) -> dict:
     header = (
         "# @package holes.sup\n"
         "# Omega_sup's working box (spec section 3): per joint [lower, upper], deg for revolute joints, m for\n"
-        "# prismatic ones. Derived by `python -m pipeline.derive_box` (pipeline/learning/supervised_set.py and\n"
-        "# pipeline/solvers/labels.py): the "
-        f"percentiles {stats['percentiles']} of the exact, clear solutions that a local search from the home pose\n"
-        f"# finds for {stats['holes']} holes drawn like Omega_unsup with seed {stats['seed']} ({stats['ok']} of them "
-        "solved so).\n# Full mechanical ranges instead: sup_box=full.\n"
+        "# prismatic ones. Derived by `python -m pipeline.derive_box` (pipeline/learning/supervised_set.py, with\n"
+        f"# the local search of pipeline/solvers/labels.py): the percentiles {stats['percentiles']} of the exact,\n"
+        f"# clear solutions that the search finds for {stats['holes']} holes drawn like Omega_unsup with seed "
+        f"{stats['seed']}\n# ({stats['ok']} of them solved so). Full mechanical ranges instead: sup_box=full.\n"
     )
     text = header + yaml.safe_dump({"box": box}, sort_keys=False, default_flow_style=None)
     write_text(text, CONF_DIR / "sup_box" / "working.yaml")

@@ -1,6 +1,12 @@
 """Imports point one way: down the layer order of docs/design.md ("Layers"), with no module cycle, and
 no study stage reaches the product side (drill plans, motion, solve)."""
 
+import ast
+import importlib.metadata
+import re
+import sys
+import tomllib
+
 import import_graph as g
 import pytest
 
@@ -12,6 +18,12 @@ def product_modules(modules: set[str]) -> list[str]:
         return g.layer(m) in g.PRODUCT_PACKAGES or (g.layer(m) == "stages" and m.split(".")[-1] in g.PRODUCT_STAGES)
 
     return sorted(filter(product, modules))
+
+
+def test_the_order_here_is_the_order_in_the_design_notes():
+    text = (g.ROOT / "docs/design.md").read_text()
+    stated = re.search(r"^ {4}(core <[^`]*?stages)$", text, re.M | re.S).group(1)
+    assert [name.strip() for name in stated.split("<")] == g.LAYERS
 
 
 def test_every_import_points_down_the_layer_order():
@@ -102,3 +114,36 @@ def test_the_closure_reaches_the_product_side_through_a_lazy_import():
     modules = planted(pipeline__generate="def f():\n    from pipeline.tracking.runs import x\n",
                       pipeline__tracking__runs="def g():\n    import pipeline.plans.model\n")
     assert product_modules(g.closure("pipeline.generate", modules)) == ["pipeline.plans", "pipeline.plans.model"]
+
+
+# --- declared dependencies ----------------------------------------------------------------------
+
+
+def third_party(paths) -> set[str]:
+    """Top-level names of the non-standard-library, non-project modules these files import."""
+    names = set()
+    for path in paths:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                names.update(a.name.split(".")[0] for a in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names.add(node.module.split(".")[0])
+    local = {p.stem for p in (g.ROOT / "tests").glob("*.py")}
+    return {n for n in names if n not in sys.stdlib_module_names and n != g.PACKAGE and n not in local}
+
+
+def declared(*extras: str) -> set[str]:
+    project = tomllib.loads((g.ROOT / "pyproject.toml").read_text())["project"]
+    reqs = project["dependencies"] + [r for e in extras for r in project["optional-dependencies"][e]]
+    return {re.split(r"[<>=!~\[; ]", r, maxsplit=1)[0].lower().replace("_", "-") for r in reqs}
+
+
+def distributions(module: str) -> set[str]:
+    return {d.lower().replace("_", "-") for d in importlib.metadata.packages_distributions().get(module, [module])}
+
+
+@pytest.mark.parametrize(("folder", "extras"), [("pipeline", ("onnx",)), ("tests", ("onnx", "dev"))])
+def test_every_imported_package_is_declared(folder, extras):
+    deps = declared(*extras)
+    missing = sorted(m for m in third_party((g.ROOT / folder).rglob("*.py")) if not distributions(m) & deps)
+    assert not missing, f"{folder}/ imports {missing}, not declared in pyproject.toml"
