@@ -8,7 +8,10 @@ and see the checker catch it.
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
+
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = "pipeline"
@@ -158,3 +161,38 @@ def closure(start: str, modules: dict[str, str], root: Path = ROOT) -> set[str]:
 def module_file(module: str, modules: dict[str, str], root: Path = ROOT) -> Path:
     base = root / Path(*module.split("."))
     return base / "__init__.py" if is_package(module, modules, root) else base.with_suffix(".py")
+
+
+def rewrite_dvc_code_deps(text: str, modules: dict[str, str], root: Path = ROOT) -> str:
+    """``dvc.yaml`` with each stage's code deps (its ``- pipeline/...`` lines) replaced by the files of
+    its import closure, in place of the first one; data deps, comments and order kept."""
+    spec = yaml.safe_load(text)["stages"]
+    lines, out, stage, i = text.split("\n"), [], None, 0
+    while i < len(lines):
+        line = lines[i]
+        if m := re.match(r"^  (\w+):", line):
+            stage = m.group(1)
+        out.append(line)
+        i += 1
+        if not (re.match(r"^\s+deps:", line) and stage in spec):
+            continue
+        body = spec[stage].get("do", spec[stage])
+        run = re.findall(r"python -m (pipeline\.\w+)", body["cmd"])
+        reached = {m for s in run for m in closure(s, modules, root)}
+        files = sorted(str(module_file(m, modules, root).relative_to(root)) for m in reached)
+        indent = re.match(r"^(\s+)", lines[i]).group(1)
+        block = [f"{indent}- {f}" for f in files]
+        while i < len(lines) and lines[i].startswith(indent + "- "):
+            if not lines[i].strip().startswith("- pipeline"):
+                out.append(lines[i])
+            elif block:
+                out += block
+                block = []
+            i += 1
+        out += block
+    return "\n".join(out)
+
+
+if __name__ == "__main__":  # python tests/import_graph.py: refresh dvc.yaml's code deps after a move
+    path = ROOT / "dvc.yaml"
+    path.write_text(rewrite_dvc_code_deps(path.read_text(), sources()))

@@ -97,3 +97,13 @@ def test_the_checker_sees_lazy_imports_and_product_files():
     assert product_file("pipeline/plans/model.py") and product_file("pipeline/solve.py")
     assert product_file(f"{DATA}plans/demo_face.csv") and not product_file("pipeline/data/holes.py")
     assert not product_file(f"{DATA}holes") and not product_file("pipeline/train.py")
+
+
+def test_the_rewriter_restores_the_exact_deps():
+    """`python tests/import_graph.py` (run after moving modules) leaves a true dvc.yaml as it is and
+    turns directory deps back into the closure's files."""
+    text = (g.ROOT / "dvc.yaml").read_text()
+    assert g.rewrite_dvc_code_deps(text, MODULES) == text
+    coarse = text.replace("      - pipeline/evaluate.py\n", "      - pipeline/evaluate.py\n      - pipeline/plans\n", 1)
+    coarse = coarse.replace("\n      - pipeline/evaluation/metrics.py\n", "\n", 1)  # evaluate's, not train's
+    assert coarse != text and g.rewrite_dvc_code_deps(coarse, MODULES) == text

@@ -8,7 +8,7 @@ import pytest
 import torch
 from mlflow.tracking import MlflowClient
 
-from pipeline import benchmark, generate, paper_baselines, train
+from pipeline import benchmark, demo_face, generate, paper_baselines, train
 from pipeline.assembly.build import load_boom
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.geometry.rotations import align, rotation_angle, rpy
@@ -290,6 +290,7 @@ def test_paper_baselines_small_budgets(bench, tiny):
                "benchmark.papers.pso.population_boom=rescue6", "benchmark.papers.pso.checkpoints=[20,40]",
                "benchmark.papers.ga.generations=10", "benchmark.papers.ga.poses_deg=[[0,0,0,0,0,30]]",
                "benchmark.papers.rbf.groups=[1]")
+    demo_face.run(cfg)  # paper 001's 63-hole face, as DVC's demo_face stage writes it
     tables = paper_baselines.run(cfg)
     assert tables["pso"]["method"].tolist() == ["pso", "eopso", "ceopso"]
     assert tables["pso_population"]["population"].tolist() == [40, 80]

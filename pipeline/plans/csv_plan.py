@@ -60,7 +60,6 @@ def read_csv_plan(path: str | Path, *, min_length: float = MIN_LENGTH) -> DrillP
     )
 
 
-
 def write_csv_plan(plan: DrillPlan | pd.DataFrame, path: str | Path) -> None:
     """Write a plan as CSV, atomically (floats at full precision: a re-read gives the same holes)."""
     write_csv(plan_frame(plan), path)

@@ -181,7 +181,6 @@ def checked_plan(
     return DrillPlan(holes, found, plan_id=plan_id, name=name, source=source, format=fmt)
 
 
-
 def plan_frame(plan: DrillPlan | pd.DataFrame) -> pd.DataFrame:
     """The holes table in file order: id, type, coordinates, then the carried columns."""
     holes = plan.holes if isinstance(plan, DrillPlan) else plan
@@ -190,7 +189,6 @@ def plan_frame(plan: DrillPlan | pd.DataFrame) -> pd.DataFrame:
         raise InputError(f"drill plan table: missing column(s) {missing}; found {list(holes.columns)}")
     first = ["hole_id", *(["hole_type"] if "hole_type" in holes else []), *COORDS]
     return holes[first + [c for c in holes.columns if c not in first]]
-
 
 
 # ---------------------------------------------------------------------------------------------
