@@ -19,7 +19,7 @@ import pandas as pd
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from pipeline.core.build import build_safety
+from pipeline.assembly.build import build_safety
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import configure_process
 from pipeline.core.settings import RuntimeSettings, parse

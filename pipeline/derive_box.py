@@ -3,8 +3,8 @@
     python -m pipeline.derive_box                       # 5000 holes, seed 7, 1st-99th percentile
     python -m pipeline.params                           # then recompose params.yaml
 
-See :func:`pipeline.learning.supervised_set.derive_working_box`. The file is configuration (committed);
-``generate`` reads it.
+See :mod:`pipeline.learning.supervised_set` (the box) and :mod:`pipeline.solvers.labels` (the local search).
+The file is configuration (committed); ``generate`` reads it.
 """
 
 from __future__ import annotations
@@ -16,12 +16,13 @@ import hydra
 import yaml
 from omegaconf import DictConfig
 
-from pipeline.core.build import build_safety, hole_sampling
+from pipeline.assembly.build import build_safety, hole_sampling
 from pipeline.core.config import CONF_DIR
 from pipeline.core.device import configure_process
 from pipeline.core.io import write_text
 from pipeline.core.settings import RuntimeSettings, parse, rule
 from pipeline.learning.supervised_set import derive_working_box
+from pipeline.solvers.labels import local_search
 
 log = logging.getLogger(__name__)
 
@@ -36,14 +37,15 @@ class DeriveBoxSettings:
 def run(cfg: DictConfig) -> dict:
     s = parse(DeriveBoxSettings, cfg.derive_box, "derive_box")
     safety = build_safety(cfg.boom, cfg.tunnel, cfg.safety)
-    box, stats = derive_working_box(safety, hole_sampling(cfg.holes), s.holes, s.seed, tuple(s.percentiles))
+    box, stats = derive_working_box(safety, hole_sampling(cfg.holes), s.holes, s.seed, tuple(s.percentiles),
+                                    solve=local_search(safety))
     header = (
         "# @package holes.sup\n"
         "# Omega_sup's working box (spec section 3): per joint [lower, upper], deg for revolute joints, m for\n"
-        "# prismatic ones. Derived by `python -m pipeline.derive_box` (pipeline/learning/supervised_set.py): the\n"
-        f"# percentiles {stats['percentiles']} of the exact, clear solutions that a local search from the home pose\n"
-        f"# finds for {stats['holes']} holes drawn like Omega_unsup with seed {stats['seed']} ({stats['ok']} of them "
-        "solved so).\n# Full mechanical ranges instead: sup_box=full.\n"
+        "# prismatic ones. Derived by `python -m pipeline.derive_box` (pipeline/learning/supervised_set.py, with\n"
+        f"# the local search of pipeline/solvers/labels.py): the percentiles {stats['percentiles']} of the exact,\n"
+        f"# clear solutions that the search finds for {stats['holes']} holes drawn like Omega_unsup with seed "
+        f"{stats['seed']}\n# ({stats['ok']} of them solved so). Full mechanical ranges instead: sup_box=full.\n"
     )
     text = header + yaml.safe_dump({"box": box}, sort_keys=False, default_flow_style=None)
     write_text(text, CONF_DIR / "sup_box" / "working.yaml")

@@ -17,7 +17,7 @@ import hydra
 import pandas as pd
 from omegaconf import DictConfig
 
-from pipeline.core.build import build_safety
+from pipeline.assembly.build import build_safety
 from pipeline.core.config import project_path
 from pipeline.core.io import save_figure, write_csv, write_json, write_parquet
 from pipeline.core.settings import parse, rule

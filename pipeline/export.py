@@ -20,7 +20,7 @@ import hydra
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from pipeline.core.build import load_boom
+from pipeline.assembly.build import load_boom
 from pipeline.core.config import project_path
 from pipeline.core.settings import parse
 from pipeline.deploy.package import ExportSettings, check_poses, export_method

@@ -5,8 +5,8 @@
 
 Writes ``holes/``: ``train.parquet`` (Omega_unsup), ``test_group_<k>.parquet``, ``sup.parquet``
 (Omega_sup, with joints) and ``meta.json`` (counts, seeds, statistics, each file's MD5), swapped in
-whole; and ``plans/demo_face.{csv,xml}``: a realistic, drillable round for the reference tunnel (CSV
-and IREDES). The same seeds give byte-identical files.
+whole. The same seeds give byte-identical files. The demo drill plan is the product side's
+(``python -m pipeline.demo_face``).
 """
 
 from __future__ import annotations
@@ -18,22 +18,20 @@ from dataclasses import dataclass, field
 import hydra
 from omegaconf import DictConfig
 
-from pipeline.core.build import build_safety, hole_sampling
+from pipeline.assembly.build import build_safety, hole_sampling
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import save_figure
 from pipeline.core.settings import parse, rule
 from pipeline.data.hole_sets import SupervisedSet, build_hole_sets, write_hole_sets
 from pipeline.data.holes import joint_box
-from pipeline.data.iredes import write_iredes_plan
-from pipeline.data.plans import demo_face, write_csv_plan
 from pipeline.data.tables import POSE_COLUMNS
 from pipeline.evaluation.plots import collar_clouds
 from pipeline.learning.supervised_set import home_branch_labels
+from pipeline.solvers.labels import home_branch
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
-DEMO_PLAN_DATE = "2026-01-01T00:00:00"  # fixed, so the same seeds give byte-identical files
 
 
 @dataclass(frozen=True)
@@ -69,16 +67,17 @@ def run(cfg: DictConfig) -> dict:
     box = None if box is None else as_dict(box)
     joint_box(safety.boom, box)  # a bad box fails here, before any sampling
     data = project_path(cfg.paths.data)
+    branch = home_branch(safety)  # the labelling solver, injected (learning sits below the solvers)
     with stage_run(tracking, "generate", {"stage": "generate"}) as mlrun:
         mlrun.log_params({k: as_dict(cfg[k]) for k in ("holes", "safety", "tunnel")})
         tables, meta = build_hole_sets(safety, hole_sampling(cfg.holes), unsup.size, unsup.seed, test.size,
-                                       list(test.seeds), sup_sets, box, lambda q: home_branch_labels(safety, q))
+                                       list(test.seeds), sup_sets, box,
+                                       lambda q: home_branch_labels(safety.boom, q, branch))
         meta["config"] = {k: as_dict(cfg[k]) for k in ("boom", "tunnel", "safety", "holes")}
         fig = collar_clouds({"Omega_sup": tables["sup.parquet"][POSE_COLUMNS].to_numpy(),
                              "Omega_unsup": tables["train.parquet"][POSE_COLUMNS].to_numpy()}, safety.tunnel,
                             {"Omega_sup": meta["sup_sets"]["sup"]["face_window_share"]})
         written = write_hole_sets(tables, meta, data / "holes")  # only after every table is built
-        written += write_demo_plan(safety, data / "plans")
         save_figure(fig, data / "figures" / "collar_clouds.png")
         mlrun.log_figure(fig, "figures/collar_clouds.png")
         mlrun.log_metrics({"unsup_rejection_rate": meta["unsup_rejection"]["rejection_rate"],
@@ -91,14 +90,6 @@ def run(cfg: DictConfig) -> dict:
              len(written), data / "holes", time.perf_counter() - t0, 100 * meta["unsup_rejection"]["rejection_rate"],
              100 * meta["sup_sets"]["sup"]["face_window_share"])
     return meta
-
-
-def write_demo_plan(safety, folder) -> list:
-    """The demo face for the reference tunnel, as CSV and as IREDES (the same holes)."""
-    plan = demo_face(safety=safety)
-    write_csv_plan(plan, folder / "demo_face.csv")
-    write_iredes_plan(plan, folder / "demo_face.xml", created=DEMO_PLAN_DATE)
-    return [folder / "demo_face.csv", folder / "demo_face.xml"]
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")

@@ -13,14 +13,15 @@ import hydra
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from pipeline.core.build import load_boom
+from pipeline.assembly.build import load_boom
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import configure_process
+from pipeline.core.errors import InputError
 from pipeline.core.io import write_csv, write_text
 from pipeline.core.settings import RuntimeSettings
 from pipeline.data.hole_sets import read_hole_poses
 from pipeline.data.holes import joint_box
-from pipeline.data.plans import hole_poses, read_csv_plan
+from pipeline.data.tables import COLLAR_COLUMNS, TOE_COLUMNS, collar_toe_poses, read_table
 from pipeline.evaluation.markdown import markdown_table
 from pipeline.evaluation.paper_experiments import ga_experiments, paper_metrics, pso_experiments, rbf_experiment
 from pipeline.tracking.runs import TrackingSettings, stage_run
@@ -34,7 +35,7 @@ def run(cfg: DictConfig) -> dict:
     holes = {k: read_hole_poses(data / "holes", f"test_group_{k}.parquet") for k in papers.rbf.groups}
     poses = torch.cat([pose for _, pose in holes.values()]).double()
     boom = load_boom(cfg.boom)
-    face = blast_holes(read_csv_plan(data / "plans" / "demo_face.csv"), boom.preview_depth)
+    face = blast_holes(data / "plans" / "demo_face.csv", boom.preview_depth)
     box = cfg.holes.sup.get("box")
     box = joint_box(boom, None if box is None else as_dict(box))
     rbf_specs = {m: OmegaConf.to_container(cfg.benchmark.solvers[m], resolve=True) for m in papers.rbf.methods}
@@ -53,11 +54,15 @@ def run(cfg: DictConfig) -> dict:
     return tables
 
 
-def blast_holes(plan, depth: float) -> torch.Tensor:
+def blast_holes(path, depth: float) -> torch.Tensor:
     """Paper 001 verifies on a 63-hole face: the demo face's holes less its relief holes (large,
-    uncharged, reamed with another bit), 63 with the default layout."""
-    keep = plan.holes["hole_type"] != "relief"
-    return hole_poses(plan.holes[keep], depth)
+    uncharged, reamed with another bit), 63 with the default layout. Read as a plain hole table:
+    a study stage does not import the drill-plan side (pipeline.plans)."""
+    holes = read_table(path, [*COLLAR_COLUMNS, *TOE_COLUMNS])
+    if "hole_type" not in holes.columns:
+        raise InputError(f"{path}: missing column 'hole_type'; found {list(holes.columns)}")
+    keep = holes[holes["hole_type"] != "relief"]
+    return collar_toe_poses(keep[COLLAR_COLUMNS].to_numpy(), keep[TOE_COLUMNS].to_numpy(), depth)
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")

@@ -24,16 +24,17 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from pipeline.core.build import build_safety, load_boom
+from pipeline.assembly.build import build_safety, load_boom
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import configure_process
 from pipeline.core.io import require_writable, save_figure, write_csv, write_json
 from pipeline.core.settings import RuntimeSettings, coerce, parse, rule
 from pipeline.data.holes import joint_box
-from pipeline.data.plans import COLLAR, read_plan
-from pipeline.data.solutions import CLEARANCE_COLUMNS, solution_frame, status_counts
 from pipeline.evaluation.plots import solution_figure
 from pipeline.learning.network_source import load_network
+from pipeline.plans.model import COLLAR
+from pipeline.plans.read import read_plan
+from pipeline.plans.solutions import CLEARANCE_COLUMNS, solution_frame, status_counts
 from pipeline.solvers.base import HoleTargets, NetworkSolver
 from pipeline.solvers.hybrid import HybridSettings, HybridSolver
 from pipeline.tracking.runs import TrackingSettings, stage_run
@@ -43,7 +44,7 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class IredesSettings:
-    """``solve.iredes``: how IREDES coordinates map onto the boom base frame (pipeline/data/iredes.py)."""
+    """``solve.iredes``: how IREDES coordinates map onto the boom base frame (pipeline/plans/iredes.py)."""
 
     axes: str = "xyz"
     unit: str = "m"

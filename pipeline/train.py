@@ -21,11 +21,12 @@ import pandas as pd
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from pipeline.core.build import build_safety, hole_sampling
+from pipeline.assembly.build import build_safety, hole_sampling
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import configure_process, resolve_device
 from pipeline.core.io import publish, require_writable, write_csv, write_json
 from pipeline.core.settings import RuntimeSettings
+from pipeline.evaluation.metrics import solution_table, summarize
 from pipeline.geometry.collision import SafetyDistances
 from pipeline.learning.models import IKNet, ModelSettings, build_model, save_checkpoint
 from pipeline.learning.training import (
@@ -77,7 +78,8 @@ def run(cfg: DictConfig) -> dict:
                       on_eval=lambda step, rec, elapsed: log_training_progress(
                           mlrun, step, settings.steps, rec, elapsed, method.name, echo=not runtime.progress))
         model = model.cpu()
-        final = final_metrics(model, data.val_pose.float(), safety, history, time.perf_counter() - t0)
+        final = final_metrics(model, data.val_pose.float(), lambda p, q: summarize(solution_table(p, q, safety)),
+                              history, time.perf_counter() - t0)
         save_outputs(model, history, final, models_dir, method.name, as_dict(cfg.boom), run_cfg, mlrun, tracking,
                      runtime.log_model, data.val_pose[:4].float().numpy())
     log.info("trained %s in %.0f s: held-out hole-seeking error %.2f mm -> %s",

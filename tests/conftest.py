@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.core.build import build_safety, load_boom
+from pipeline.assembly.build import build_safety, load_boom
 from pipeline.core.config import compose, load_group_file
 
 

@@ -7,7 +7,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.core.build import build_safety
+from pipeline.assembly.build import build_safety
 from pipeline.core.errors import ConfigError
 from pipeline.geometry.collision import SAFETY_KINDS, SafetyDistances, segment_distance
 from pipeline.geometry.tunnel import Horseshoe

@@ -6,8 +6,8 @@ import dataclasses
 import pytest
 from omegaconf import OmegaConf
 
+from pipeline.assembly.build import build_safety, hole_sampling
 from pipeline.calibration.study import CalibrationSettings
-from pipeline.core.build import build_safety, hole_sampling
 from pipeline.core.config import CONF_DIR, compose
 from pipeline.core.errors import ConfigError
 from pipeline.core.settings import RuntimeSettings, parse
@@ -87,7 +87,7 @@ def test_every_experiment_composes_and_validates(experiment):
 @pytest.mark.parametrize("option", group_options())
 def test_every_group_option_composes_and_validates(option):
     if option.startswith("boom=") and option != "boom=jumbo8":  # other booms: no tunnel / working box of theirs
-        from pipeline.core.build import load_boom
+        from pipeline.assembly.build import load_boom
 
         assert load_boom(option.split("=")[1]).n_joints >= 6
         return

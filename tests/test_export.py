@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from pipeline import export
-from pipeline.core.build import load_boom
+from pipeline.assembly.build import load_boom
 from pipeline.core.config import compose, load_group_file
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.data.holes import HoleSampling, sample_holes

@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-from pipeline.core.build import load_boom
+from pipeline.assembly.build import load_boom
 from pipeline.data.holes import HoleSampling, sample_holes, sample_joints
 from pipeline.evaluation.metrics import solution_table
 from pipeline.geometry.collision import SAFETY_KINDS

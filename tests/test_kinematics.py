@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-from pipeline.core.build import load_boom
+from pipeline.assembly.build import load_boom
 from pipeline.core.config import load_group_file
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.geometry.boom_config import boom_from_config

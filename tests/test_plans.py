@@ -11,20 +11,11 @@ import pytest
 import torch
 
 from pipeline.core.errors import ConfigError, InputError
-from pipeline.data.iredes import AxisMap, file_crc32, iredes_bytes, read_iredes_plan, write_iredes_plan
-from pipeline.data.plans import (
-    COLLAR,
-    COORDS,
-    HOLE_TYPES,
-    TOE,
-    DrillPlan,
-    demo_face,
-    hole_poses,
-    plan_clearances,
-    read_csv_plan,
-    read_plan,
-    write_csv_plan,
-)
+from pipeline.plans.csv_plan import read_csv_plan, write_csv_plan
+from pipeline.plans.demo_face import demo_face, plan_clearances
+from pipeline.plans.iredes import AxisMap, file_crc32, iredes_bytes, read_iredes_plan, write_iredes_plan
+from pipeline.plans.model import COLLAR, COORDS, HOLE_TYPES, TOE, DrillPlan, hole_poses
+from pipeline.plans.read import read_plan
 
 HEADER = "hole_id,collar_x,collar_y,collar_z,toe_x,toe_y,toe_z,hole_type"
 STAMP = "2025-01-01T00:00:00"
@@ -110,7 +101,7 @@ def test_tampered_file_fails_the_checksum(demo, tmp_path, caplog):
     crc, _ = file_crc32(path.read_bytes())
     with pytest.raises(InputError, match=rf"face.xml: IREDES checksum mismatch: .*'{stored}'.* {crc} "):
         read_iredes_plan(path)
-    with caplog.at_level(logging.WARNING, logger="pipeline.data.iredes"):
+    with caplog.at_level(logging.WARNING, logger="pipeline.plans.iredes"):
         plan = read_iredes_plan(path, checksum="warn")
     assert "checksum mismatch" in caplog.text and len(plan) == len(demo)
     assert plan.holes["collar_y"].iloc[0] != demo.holes["collar_y"].iloc[0]  # the tampered value is read
@@ -284,6 +275,20 @@ def test_demo_face_is_deterministic_and_checks_its_parameters(demo, safety):
     pd.testing.assert_frame_equal(demo_face(safety=safety).holes, demo.holes)
     with pytest.raises(ConfigError, match=r"x_face = 8.0"):
         demo_face(safety=safety, x_face=8.0)
+
+
+def test_the_demo_face_stage_writes_the_plan_as_csv_and_iredes_and_generate_does_not(tmp_path, make_cfg, demo):
+    from pipeline import demo_face as stage
+    from pipeline import generate
+
+    written = stage.run(make_cfg(tmp_path / "a"))
+    plans = tmp_path / "a" / "data" / "plans"
+    assert written == [plans / "demo_face.csv", plans / "demo_face.xml"]
+    rerun = stage.run(make_cfg(tmp_path / "b"))  # the same config gives the same bytes (DVC sees no change)
+    for path, again in zip(written, rerun, strict=True):
+        assert again.read_bytes() == path.read_bytes(), path.name
+        _same_holes(demo.holes, read_plan(path).holes)
+    assert not hasattr(generate, "write_demo_plan")  # the study stage no longer writes the product's plan
 
 
 # --- poses ------------------------------------------------------------------------------------

@@ -10,12 +10,12 @@ import pytest
 import torch
 from mlflow.tracking import MlflowClient
 
-from pipeline import generate, solve, train
+from pipeline import demo_face, generate, solve, train
 from pipeline.core.config import PROJECT_ROOT
 from pipeline.core.errors import InputError
-from pipeline.data.iredes import write_iredes_plan
-from pipeline.data.plans import read_csv_plan, write_csv_plan
 from pipeline.evaluation.metrics import solution_table
+from pipeline.plans.csv_plan import read_csv_plan, write_csv_plan
+from pipeline.plans.iredes import write_iredes_plan
 
 TINY = ["train.steps=400", "runtime.log_model=true", "holes.unsup.size=500", "holes.sup.size=300",
         "holes.test.size=20", "solver.deep_starts=32"]
@@ -25,6 +25,7 @@ TINY = ["train.steps=400", "runtime.log_model=true", "holes.unsup.size=500", "ho
 def study(tmp_path_factory, make_cfg):
     tmp = tmp_path_factory.mktemp("solve")
     generate.run(make_cfg(tmp, *TINY))
+    demo_face.run(make_cfg(tmp, *TINY))
     trained = train.run(make_cfg(tmp, *TINY, "method=cuikm"))
     plans = tmp / "data" / "plans"
     demo = read_csv_plan(plans / "demo_face.csv")

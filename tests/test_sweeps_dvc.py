@@ -13,8 +13,8 @@ import yaml
 from mlflow.tracking import MlflowClient
 
 from pipeline.core.config import PROJECT_ROOT
+from pipeline.evaluation.pareto import pareto_front, summary_table
 from pipeline.params import composed_yaml
-from pipeline.tracking.sweep import pareto_front, summary_table
 
 pytestmark = pytest.mark.slow  # every test here runs stages as subprocesses
 

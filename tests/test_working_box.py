@@ -12,6 +12,7 @@ from pipeline.data.hole_sets import read_hole_table
 from pipeline.data.holes import HoleSampling, in_face_window, joint_box, sample_joints
 from pipeline.data.tables import POSE_COLUMNS
 from pipeline.learning.supervised_set import derive_working_box
+from pipeline.solvers.labels import local_search
 
 
 @pytest.fixture(scope="module")
@@ -51,9 +52,9 @@ def test_the_face_window_test_itself():
 
 
 def test_the_box_derivation_is_deterministic_for_a_seed(safety):
-    a, sa = derive_working_box(safety, HoleSampling(), 150, seed=7)
-    b, _ = derive_working_box(safety, HoleSampling(), 150, seed=7)
-    c, _ = derive_working_box(safety, HoleSampling(), 150, seed=8)
+    a, sa = derive_working_box(safety, HoleSampling(), 150, seed=7, solve=local_search(safety))
+    b, _ = derive_working_box(safety, HoleSampling(), 150, seed=7, solve=local_search(safety))
+    c, _ = derive_working_box(safety, HoleSampling(), 150, seed=8, solve=local_search(safety))
     assert a == b and a != c
     assert sa["ok"] >= 130 and set(a) == set(safety.boom.joint_names)
 
@@ -86,4 +87,4 @@ def test_full_ranges_stay_available(tmp_path, make_cfg):
 
 def test_too_few_solved_holes_is_an_error(safety):
     with pytest.raises(InputError, match="too few"):
-        derive_working_box(safety, HoleSampling(), 50, seed=1)
+        derive_working_box(safety, HoleSampling(), 50, seed=1, solve=local_search(safety))

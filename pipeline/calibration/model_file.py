@@ -75,7 +75,7 @@ def load_model(path: str | Path, boom: Boom | None = None) -> BoomWithErrors:
             raise InputError(f"{path}: {key} = {doc.get(key)!r}; expected {want!r}")
     name = doc.get("boom")
     if boom is None:
-        from pipeline.core.build import load_boom
+        from pipeline.assembly.build import load_boom
 
         try:
             boom = load_boom(str(name))

@@ -19,6 +19,7 @@ import pandas as pd
 import torch
 from omegaconf import DictConfig
 
+from pipeline.assembly.build import build_safety
 from pipeline.calibration.compensation import INITS, NetworkParams, fit_compensator, training_pairs
 from pipeline.calibration.error_model import DISTRIBUTIONS, BoomWithErrors, ErrorLevel, draw_errors
 from pipeline.calibration.identification import Basis, Weights, identifiable_basis, identify
@@ -34,7 +35,6 @@ from pipeline.calibration.measurements import (
 from pipeline.calibration.model_file import save_model
 from pipeline.calibration.quality import GateSettings, assess, rejected_path, rejection_message, write_rejected
 from pipeline.calibration.swarm import PSOParams, SSAParams
-from pipeline.core.build import build_safety
 from pipeline.core.config import project_path
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.core.io import save_figure, write_csv, write_text

@@ -1,1 +1,1 @@
-"""Cross-cutting plumbing: errors, config loading and validation, file I/O, device, object building."""
+"""Cross-cutting plumbing: errors, config loading and validation, file I/O, device."""

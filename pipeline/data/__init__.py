@@ -1,1 +1,1 @@
-"""Hole sets and tables on disk: sampling, validation, drill plans."""
+"""The study's hole data: sampling, hole sets and tables on disk, validation."""

@@ -12,6 +12,8 @@ import torch
 from pipeline.core.errors import InputError
 
 POSE_COLUMNS = ["collar_x", "collar_y", "collar_z", "preview_x", "preview_y", "preview_z"]
+COLLAR_COLUMNS = ["collar_x", "collar_y", "collar_z"]
+TOE_COLUMNS = ["toe_x", "toe_y", "toe_z"]  # a hole's end point, in tables that give one (drill plans)
 
 
 def holes_frame(poses: torch.Tensor, hole_ids: Sequence[int] | None = None) -> pd.DataFrame:
@@ -47,10 +49,26 @@ def check_table(df: pd.DataFrame, columns: Sequence[str], source: str) -> None:
 
 def read_poses(path: str | Path) -> tuple[pd.DataFrame, torch.Tensor]:
     """Read a hole table and return it with its ``(n, 6)`` float64 pose tensor."""
+    df = read_table(path, POSE_COLUMNS)
+    return df, torch.tensor(df[POSE_COLUMNS].to_numpy(dtype=np.float64))
+
+
+def read_table(path: str | Path, numeric: Sequence[str]) -> pd.DataFrame:
+    """A hole table (Parquet or CSV) whose ``numeric`` columns are present and finite."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such hole table")
     df = pd.read_parquet(path) if path.suffix == ".parquet" else pd.read_csv(path)
-    check_table(df, POSE_COLUMNS, str(path))
-    return df, torch.tensor(df[POSE_COLUMNS].to_numpy(dtype=np.float64))
+    check_table(df, numeric, str(path))
+    return df
 
+
+
+def collar_toe_poses(collar: np.ndarray, toe: np.ndarray, depth: float) -> torch.Tensor:
+    """``(n, 6)`` float64 hole poses ``[p, p + depth * unit(toe - collar)]`` (paper 000 eq. 4): the
+    preview point lies ``depth`` along the hole, whatever the hole's own length. Callers check
+    ``depth`` and that no hole has zero length."""
+    collar = np.asarray(collar, dtype=np.float64)
+    axis = np.asarray(toe, dtype=np.float64) - collar
+    length = np.linalg.norm(axis, axis=1, keepdims=True)
+    return torch.from_numpy(np.concatenate([collar, collar + depth * axis / length], axis=1))

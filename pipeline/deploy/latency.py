@@ -26,7 +26,7 @@ from pathlib import Path
 import pandas as pd
 import torch
 
-from pipeline.core.build import load_boom
+from pipeline.assembly.build import load_boom
 from pipeline.core.config import as_dict
 from pipeline.deploy import formats
 from pipeline.deploy.package import LatencySettings, check_poses, versions

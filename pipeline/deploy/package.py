@@ -20,7 +20,7 @@ from typing import Any
 
 import torch
 
-from pipeline.core.build import build_safety
+from pipeline.assembly.build import build_safety
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import publish, write_json
 from pipeline.core.settings import rule

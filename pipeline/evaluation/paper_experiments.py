@@ -16,7 +16,7 @@ import math
 import pandas as pd
 import torch
 
-from pipeline.core.build import load_boom
+from pipeline.assembly.build import load_boom
 from pipeline.evaluation.paper_numbers import PAPER_002
 from pipeline.geometry.kinematics import Boom
 from pipeline.solvers.base import FrameTargets, HoleTargets, JointSpace, tool_transform

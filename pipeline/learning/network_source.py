@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pipeline.core.build import load_boom
+from pipeline.assembly.build import load_boom
 from pipeline.core.errors import InputError
 from pipeline.geometry.kinematics import Boom
 from pipeline.learning.models import IKNet, check_network_fits, load_checkpoint

@@ -3,47 +3,53 @@ actually use, spec section 3), and optionally branch-consistent labels.
 
 Paper 000 labels its supervised set from "each joint's range of activity". A rig would take those
 ranges from its logged joints; here they come from exact, collision-free solutions of holes drawn
-like Omega_unsup, solved by the hybrid solver from the home pose (so no trained network is
-involved and the derivation is reproducible), as the 1st-99th percentile of each joint.
+like Omega_unsup, solved from the home pose (so no trained network is involved and the derivation
+is reproducible), as the 1st-99th percentile of each joint.
 
 The search is local, as an operator's would be: the home pose and perturbations of it, keeping the
-ok solution that moves the joints least (``prefer: start``), without random restarts. With random
-restarts every hole is solved, but the 1-2 % that need one land anywhere in the boom rotation and
-roll-over ranges (+-180 deg) and would stretch the box over postures no rig uses; those holes are
-left out of the statistics instead (their share is reported).
+ok solution that moves the joints least, without random restarts. With random restarts every hole
+is solved, but the 1-2 % that need one land anywhere in the boom rotation and roll-over ranges
+(+-180 deg) and would stretch the box over postures no rig uses; those holes are left out of the
+statistics instead (their share is reported).
+
+The solver comes in as a callable ``solve(poses) -> (joints, found)`` (learning sits below the
+solvers; the stages build it with :mod:`pipeline.solvers.labels`).
 """
 
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Callable
 
 import torch
 
 from pipeline.core.errors import InputError
 from pipeline.data.holes import HoleSampling, sample_holes
 from pipeline.geometry.collision import SafetyModel
-from pipeline.solvers.base import HoleTargets
-from pipeline.solvers.hybrid import HybridSettings, HybridSolver
+from pipeline.geometry.kinematics import Boom
 
-LOCAL_SEARCH = HybridSettings(prefer="start", random_starts=0, perturbed_starts=8)
+Solve = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]  # poses (n, 6) -> joints (n, dof), found (n,)
 
 
 def derive_working_box(safety: SafetyModel, sampling: HoleSampling, n: int, seed: int,
-                       percentiles: tuple[float, float] = (1.0, 99.0),
-                       settings: HybridSettings = LOCAL_SEARCH) -> tuple[dict[str, list[float]], dict]:
+                       percentiles: tuple[float, float] = (1.0, 99.0), *,
+                       solve: Solve) -> tuple[dict[str, list[float]], dict]:
     """Per free joint ``[lower, upper]`` (deg for revolute joints, m for prismatic ones, rounded to
-    0.01), and statistics of the derivation."""
+    0.01), and statistics of the derivation. ``solve`` gives each hole's joints and whether they
+    are exact and clear (e.g. :func:`pipeline.solvers.labels.local_search`)."""
     lo_pct, hi_pct = percentiles
     if not 0 <= lo_pct < hi_pct <= 100:
         raise InputError(f"derive_box.percentiles = {list(percentiles)}: expected 0 <= lower < upper <= 100")
     boom = safety.boom
     pose, _ = sample_holes(n, safety, sampling, seed)
-    result = HybridSolver(boom, safety, None, settings).solve(HoleTargets(pose, boom.preview_depth))
-    ok = torch.tensor([s == "ok" for s in result.status])
+    t0 = time.perf_counter()
+    q, ok = solve(pose)
+    solve_s = time.perf_counter() - t0
     if int(ok.sum()) < 100:
         raise InputError(f"derive_box: only {int(ok.sum())} of {n} holes solved exactly and clear; too few for "
                          "percentiles")
-    q = result.q[ok]
+    q = q[ok]
     bounds = torch.quantile(q, torch.tensor([lo_pct / 100, hi_pct / 100], dtype=q.dtype), dim=0)
     box = {}
     for i, joint in enumerate(boom.joints):
@@ -53,22 +59,18 @@ def derive_working_box(safety: SafetyModel, sampling: HoleSampling, n: int, seed
         lo, hi = (float(v) * scale for v in bounds[:, i])
         box[joint.name] = [math.floor(lo * 100) / 100, math.ceil(hi * 100) / 100]  # outward, so the box holds them
     stats = {"holes": n, "seed": seed, "ok": int(ok.sum()), "ok_share": float(ok.double().mean()),
-             "percentiles": [lo_pct, hi_pct], "solve_s": result.wall_s}
+             "percentiles": [lo_pct, hi_pct], "solve_s": solve_s}
     return box, stats
 
 
-def home_branch_labels(safety: SafetyModel, q: torch.Tensor, settings: HybridSettings = LOCAL_SEARCH) -> tuple:
+def home_branch_labels(boom: Boom, q: torch.Tensor, solve: Solve) -> tuple[torch.Tensor, float]:
     """Relabel sampled joints ``q (n, n_joints)`` with the solution of their own pose that a local
-    search from the home pose reaches (pose only, no safety rows), where it reaches it exactly.
+    search from the home pose reaches, where it reaches it exactly (``solve``, e.g.
+    :func:`pipeline.solvers.labels.home_branch`).
 
     An 8-joint boom reaches a hole pose along a 3-parameter family of joints, so a regression on
     sampled joints averages incompatible branches; the home-branch label picks one branch per
     pose, continuously (the same search from the same start). Returns the labels and the share
     of samples relabelled (the rest keep their sampled joints)."""
-    boom = safety.boom
-    solver = HybridSolver(boom, safety, None, settings)
-    pose = boom.pose6(q)
-    home = solver.space.full((0.5 * (solver.space.lower + solver.space.upper)).expand(len(q), -1))
-    found = solver.refine(home, pose, use_safety=False)
-    exact = found.hole_error <= settings.tol_mm / 1000
-    return torch.where(exact[:, None], found.q, q), float(exact.double().mean())
+    found, exact = solve(boom.pose6(q))
+    return torch.where(exact[:, None], found, q), float(exact.double().mean())

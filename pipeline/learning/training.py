@@ -21,7 +21,6 @@ from pipeline.core.signals import raise_if_terminated
 from pipeline.data.hole_sets import read_hole_poses, read_hole_table
 from pipeline.data.holes import HoleSampling, sample_holes
 from pipeline.data.tables import POSE_COLUMNS
-from pipeline.evaluation.metrics import solution_table, summarize
 from pipeline.geometry.collision import SafetyDistances, SafetyModel
 from pipeline.geometry.kinematics import Boom, pose_errors
 from pipeline.learning.losses import POSE_LOSSES, joint_loss, pose_loss, safety_terms, total_loss
@@ -241,11 +240,17 @@ def _finite_report(terms: dict[str, torch.Tensor]) -> dict[str, float]:
     return {k: round(float(v.detach()), 6) for k, v in terms.items()}
 
 
+Score = Callable[[torch.Tensor, torch.Tensor], Mapping[str, float]]  # (poses, joints) -> summary statistics
+
+
 @torch.no_grad()
-def final_metrics(model: IKNet, val_pose: torch.Tensor, safety: SafetyModel, history: list[dict],
+def final_metrics(model: IKNet, val_pose: torch.Tensor, score: Score, history: list[dict],
                   train_seconds: float) -> dict[str, float]:
-    """Held-out errors and safety of the trained network; refuses a non-finite result."""
-    val = summarize(solution_table(val_pose.cpu(), model(val_pose.cpu()), safety))
+    """Held-out errors and safety of the trained network; refuses a non-finite result.
+
+    ``score(pose, q)`` gives ``hole_mm_p95``, ``collision_rate_paper`` and ``any_violation_share``
+    (the evaluation's own statistics, passed in by the stage: learning sits below evaluation)."""
+    val = score(val_pose.cpu(), model(val_pose.cpu()))
     kept = next((rec for rec in history if rec.get("kept")), history[-1])  # the weights the model ends with
     final = {
         **{k: v for k, v in kept.items() if k.startswith("val_")},

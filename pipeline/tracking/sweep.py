@@ -6,7 +6,8 @@ fresh SQLite file. Jobs find the parent through a file in the sweep folder, whic
 every launcher (in-process, joblib, Ray).
 
 Every sweep ends with a summary (``summary.csv``, ``tradeoff.png`` with the Pareto front, both
-also on the parent run) over the jobs that finished, and with the parent in a terminal state:
+also on the parent run; computed by :mod:`pipeline.evaluation.pareto`) over the jobs that
+finished, and with the parent in a terminal state:
 
 * all jobs finished: FINISHED;
 * a job failed: its child run is FAILED (created here if the job failed before it could open
@@ -22,20 +23,18 @@ import json
 import logging
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from pipeline.core.io import save_figure, write_csv, write_json
 from pipeline.core.signals import install_for_process
+from pipeline.evaluation.pareto import sweep_tradeoff
 
 log = logging.getLogger(__name__)
 PARENT_FILE = "mlflow_parent_run_id"
 JOB_RUN_FILE = "mlflow_run_id"
 JOB_FAILED_FILE = "job_failed.json"
-SUMMARY_METRICS = ["final_val_hole_mm", "final_val_hole_mm_p95", "final_val_collision_rate",
-                   "final_val_any_violation_share", "final_train_seconds"]
 
 
 def _sweep_dir() -> Path | None:
@@ -101,42 +100,10 @@ def runs_from_job_files(folder: Path) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def pareto_front(error: np.ndarray, rate: np.ndarray) -> np.ndarray:
-    """Boolean mask of the points no other point beats on both error and collision rate."""
-    pts = np.stack([error, rate], axis=1)
-    better_eq = (pts[None, :, :] <= pts[:, None, :]).all(-1)
-    strictly = (pts[None, :, :] < pts[:, None, :]).any(-1)
-    dominated = (better_eq & strictly).any(axis=1)
-    return ~dominated
-
-
-def summary_table(runs: pd.DataFrame) -> pd.DataFrame:
-    """One row per child run: its overrides, final metrics and whether it is on the Pareto front
-    (among the jobs that finished)."""
-    cols = {"run_id": "run_id", "tags.sweep.overrides": "overrides", "status": "status"}
-    df = runs.rename(columns=cols).reindex(columns=list(cols.values())).copy()
-    for m in SUMMARY_METRICS:
-        df[m.removeprefix("final_")] = runs[f"metrics.{m}"] if f"metrics.{m}" in runs else np.nan
-    # Label each job by what it changes: drop the overrides every job of the sweep shares.
-    tokens = [str(o).split() for o in df["overrides"].fillna("")]
-    common = set.intersection(*map(set, tokens)) if len(tokens) > 1 else set()
-    df["overrides"] = [" ".join(t for t in toks if t not in common) for toks in tokens]
-    df = df.sort_values("overrides", kind="stable").reset_index(drop=True)
-    ok = (df["status"] == "FINISHED") & df["val_hole_mm"].notna() & df["val_collision_rate"].notna()
-    df["pareto"] = False
-    if ok.any():
-        df.loc[ok, "pareto"] = pareto_front(df.loc[ok, "val_hole_mm"].to_numpy(dtype=float),
-                                            df.loc[ok, "val_collision_rate"].to_numpy(dtype=float))
-    return df
-
-
 def write_summary(folder: Path, runs: pd.DataFrame, client=None, parent: str | None = None) -> pd.DataFrame:
     """``summary.csv`` and ``tradeoff.png`` in the sweep folder, and on the parent run if any."""
-    from pipeline.evaluation.plots import tradeoff_figure
-
-    table = summary_table(runs)
+    table, fig = sweep_tradeoff(runs)
     write_csv(table, folder / "summary.csv")
-    fig = tradeoff_figure(table)
     save_figure(fig, folder / "tradeoff.png")
     if client is not None and parent:
         client.log_table(parent, table.astype({"overrides": str, "status": str}), "sweep/summary.json")

@@ -77,7 +77,7 @@ import pandas as pd
 
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.core.io import atomic_write
-from pipeline.data.plans import (
+from pipeline.plans.model import (
     COORDS,
     MIN_LENGTH,
     REQUIRED,

@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from pipeline.data.plans import COORDS, DrillPlan
 from pipeline.geometry.collision import SAFETY_KINDS
+from pipeline.plans.model import COORDS, DrillPlan
 from pipeline.solvers.base import SolveResult
 
 INVALID = "invalid"

@@ -1,0 +1,208 @@
+"""Drill plans: the holes of one round on a tunnel face, checked row by row, as 6-D hole poses.
+
+A plan lists, per hole, its collar (start point on the face) and toe (end point), in metres
+in the boom base frame (spec sect. 1: x toward the face, y on the tunnel centre line, z up
+from the floor). The hole pose of paper 000 eq. 4 is ``[p, p + D * unit(toe - collar)]``: the
+preview point lies D along the hole, whatever the hole's own length.
+
+Readers never stop at a bad row: every row-level problem (a missing, non-numeric or
+non-finite coordinate, an empty or duplicate id, a zero-length hole) is collected as a
+:class:`RowProblem` naming the row and the hole id, and the good rows are still returned, so
+a plan with one typo is still solved. Only file-level faults (no such file, an empty file, a
+missing column, no good row at all) raise :class:`~pipeline.core.errors.InputError`.
+
+The plan model and the row checks here; CSV in :mod:`pipeline.plans.csv_plan`, IREDES XML in
+:mod:`pipeline.plans.iredes`; :func:`pipeline.plans.read.read_plan` picks by suffix.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+import torch
+
+from pipeline.core.errors import ConfigError, InputError
+from pipeline.data.tables import COLLAR_COLUMNS, TOE_COLUMNS, collar_toe_poses
+
+COLLAR = COLLAR_COLUMNS
+TOE = TOE_COLUMNS
+COORDS = COLLAR + TOE
+REQUIRED = ["hole_id", *COORDS]
+HOLE_TYPES = ("cut", "relief", "stoping", "lifter", "contour")
+MIN_LENGTH = 1e-6  # m; a shorter hole has no usable direction (toe == collar)
+SHOWN_PROBLEMS = 10  # problems quoted in a file-level error message
+_NON_FINITE = r"[+-]?(nan|inf|infinity)"
+
+
+@dataclass(frozen=True)
+class RowProblem:
+    """One bad row: ``row`` is its line in the file (CSV: the header is line 1; IREDES: the
+    line of the ``<Hole>`` start tag), ``hole_id`` is "" when the id itself is missing."""
+
+    row: int
+    hole_id: str
+    column: str
+    message: str
+
+    def describe(self, source: str | None = None) -> str:
+        where = f"{source}: " if source else ""
+        return f"{where}row {self.row}, hole {self.hole_id!r}, column '{self.column}': {self.message}"
+
+
+@dataclass
+class DrillPlan:
+    """The good holes of a plan, the problems of its bad rows, and where it came from.
+
+    ``holes``: ``hole_id`` (str), the six coordinate columns (float64, m, base frame),
+    ``hole_type`` when known, and every other column of the source carried through.
+    ``format``: ``"csv"``, ``"iredes"`` or ``"demo"``.
+    """
+
+    holes: pd.DataFrame
+    problems: list[RowProblem] = field(default_factory=list)
+    plan_id: str = ""
+    name: str = ""
+    source: str | None = None
+    format: str = "csv"
+
+    def __len__(self) -> int:
+        return len(self.holes)
+
+    def poses(self, depth: float) -> torch.Tensor:
+        return hole_poses(self, depth)
+
+    def problems_frame(self) -> pd.DataFrame:
+        """The problems as a table (row, hole_id, column, message), e.g. to log or write."""
+        cols = ["row", "hole_id", "column", "message"]
+        return pd.DataFrame([[p.row, p.hole_id, p.column, p.message] for p in self.problems], columns=cols)
+
+    def report(self) -> list[str]:
+        """One line per problem, naming the file, row, hole and column."""
+        return [p.describe(self.source) for p in self.problems]
+
+
+# ---------------------------------------------------------------------------------------------
+# Checking rows (shared by the CSV and IREDES readers)
+
+
+def _cell_kinds(text: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Values (NaN where not a finite number), stripped text, and a code per cell:
+    0 ok, 1 missing, 2 non-numeric, 3 non-finite."""
+    stripped = text.apply(lambda c: c.astype("string").fillna("").str.strip())
+    values = stripped.apply(lambda c: pd.to_numeric(c, errors="coerce")).to_numpy(dtype=np.float64, na_value=np.nan)
+    spelled = stripped.apply(lambda c: c.str.fullmatch(_NON_FINITE, case=False)).to_numpy(dtype=bool)
+    empty = (stripped == "").to_numpy(dtype=bool)
+    kind = np.zeros(values.shape, dtype=np.int8)
+    kind[np.isinf(values) | spelled] = 3
+    kind[np.isnan(values) & ~spelled] = 2
+    kind[empty] = 1
+    values[kind != 0] = np.nan
+    return values, stripped.to_numpy(dtype=object), kind
+
+
+_KIND_TEXT = {1: "missing value", 2: "non-numeric value {!r}", 3: "non-finite value {!r}"}
+
+
+def infer_column_types(df: pd.DataFrame) -> pd.DataFrame:
+    """Columns read as text become numbers where every non-empty value is one, as pandas types
+    a CSV column (IREDES extras); the others stay text."""
+    out = df.copy()
+    for col in out.columns:
+        text = out[col].astype("string").fillna("").str.strip()
+        nums = pd.to_numeric(text.replace("", None).astype(object), errors="coerce")
+        numeric = text.ne("").any() and nums.notna().eq(text.ne("")).all()
+        out[col] = nums if numeric else text.astype(str)
+    return out
+
+
+def checked_plan(
+    ids: Sequence[str],
+    coord_text: pd.DataFrame,
+    extras: pd.DataFrame,
+    rows: np.ndarray,
+    *,
+    source: str,
+    fmt: str,
+    plan_id: str,
+    name: str,
+    labels: Sequence[str] = COORDS,
+    to_base: Callable[[np.ndarray], np.ndarray] | None = None,
+    id_label: str = "hole_id",
+    length_label: str = "toe",
+    min_length: float = MIN_LENGTH,
+) -> DrillPlan:
+    """Check every row and keep the good ones.
+
+    ``coord_text``: six columns of text in the file's own order (collar then toe), named in
+    messages by ``labels``; ``to_base`` maps the parsed ``(n, 6)`` numbers to base-frame
+    metres (IREDES axes, units, origin). ``rows``: each row's line in the file.
+    Raises :class:`InputError` when no row is good.
+    """
+    if not (isinstance(min_length, (int, float)) and min_length > 0):
+        raise ConfigError(f"min_length = {min_length!r}: expected a positive length (m)")
+    ids = np.asarray([str(i).strip() for i in ids], dtype=object)
+    rows = np.asarray(rows, dtype=np.int64)
+    values, text, kind = _cell_kinds(coord_text.reset_index(drop=True))
+    bad = kind != 0
+    problems: list[tuple[int, int, str, str]] = []  # (position, column order, column, message)
+    for i, j in zip(*np.nonzero(bad), strict=True):
+        problems.append((i, j + 1, labels[j], _KIND_TEXT[int(kind[i, j])].format(text[i, j])))
+    empty_id = ids == ""
+    for i in np.flatnonzero(empty_id):
+        problems.append((i, 0, id_label, "empty hole id"))
+    series = pd.Series(ids)
+    dup = series.duplicated(keep="first").to_numpy() & ~empty_id
+    first = pd.Series(np.arange(len(ids))).groupby(ids).transform("min").to_numpy()
+    for i in np.flatnonzero(dup):
+        problems.append((i, 0, id_label, f"duplicate hole id {ids[i]!r} (first at row {rows[first[i]]})"))
+    base = values if to_base is None else to_base(values)
+    length = np.linalg.norm(base[:, 3:] - base[:, :3], axis=1)
+    short = ~bad.any(axis=1) & (length < min_length)
+    for i in np.flatnonzero(short):
+        problems.append((i, 7, length_label, f"zero-length hole: toe equals collar (length {length[i]:.3g} m)"))
+    problems.sort(key=lambda p: (p[0], p[1]))
+    found = [RowProblem(int(rows[i]), str(ids[i]), col, msg) for i, _, col, msg in problems]
+    good = np.ones(len(ids), dtype=bool)
+    good[[p[0] for p in problems]] = False
+    if not good.any():
+        shown = "; ".join(p.describe() for p in found[:SHOWN_PROBLEMS])
+        more = f" (and {len(found) - SHOWN_PROBLEMS} more)" if len(found) > SHOWN_PROBLEMS else ""
+        raise InputError(f"{source}: no usable hole in {len(ids)} row(s): {shown}{more}")
+    holes = pd.DataFrame(base[good], columns=COORDS)
+    holes.insert(0, "hole_id", pd.Series(ids[good], dtype=str))
+    extras = extras.reset_index(drop=True).loc[good].reset_index(drop=True)
+    if "hole_type" in extras:
+        extras["hole_type"] = extras["hole_type"].astype("string").fillna("").astype(str)
+    holes = pd.concat([holes, extras], axis=1)
+    return DrillPlan(holes, found, plan_id=plan_id, name=name, source=source, format=fmt)
+
+
+def plan_frame(plan: DrillPlan | pd.DataFrame) -> pd.DataFrame:
+    """The holes table in file order: id, type, coordinates, then the carried columns."""
+    holes = plan.holes if isinstance(plan, DrillPlan) else plan
+    missing = [c for c in REQUIRED if c not in holes.columns]
+    if missing:
+        raise InputError(f"drill plan table: missing column(s) {missing}; found {list(holes.columns)}")
+    first = ["hole_id", *(["hole_type"] if "hole_type" in holes else []), *COORDS]
+    return holes[first + [c for c in holes.columns if c not in first]]
+
+
+# ---------------------------------------------------------------------------------------------
+# Poses
+
+
+def hole_poses(plan: DrillPlan | pd.DataFrame, depth: float) -> torch.Tensor:
+    """``(n, 6)`` float64 hole poses ``[p, p + depth * unit(toe - collar)]`` (paper 000 eq. 4)."""
+    if isinstance(depth, bool) or not isinstance(depth, (int, float)) or not math.isfinite(depth) or depth <= 0:
+        raise ConfigError(f"preview depth = {depth!r}: expected a positive number (m)")
+    holes = plan_frame(plan)
+    collar, toe = holes[COLLAR].to_numpy(dtype=np.float64), holes[TOE].to_numpy(dtype=np.float64)
+    length = np.linalg.norm(toe - collar, axis=1)
+    if not np.all(length >= MIN_LENGTH):
+        i = int(np.argmin(length))
+        raise InputError(f"hole {holes['hole_id'].iloc[i]!r}: zero-length hole (length {float(length[i]):.3g} m)")
+    return collar_toe_poses(collar, toe, depth)
