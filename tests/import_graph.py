@@ -24,7 +24,6 @@ PRODUCT_PACKAGES = {"plans", "motion"}
 STUDY_STAGES = {"generate", "train", "evaluate", "benchmark", "paper_baselines", "report", "derive_box", "export",
                 "export_benchmark", "calibrate", "params"}
 PRODUCT_STAGES = {"solve", "demo_face"}
-SHIMS = {"models"}  # pipeline/models.py: an old import path kept for pickled MLflow models, not a stage
 
 
 def module_of(path: Path, root: Path = ROOT) -> str:

@@ -37,7 +37,7 @@ def test_no_module_import_cycle():
 
 def test_every_stage_is_a_study_or_a_product_stage():
     stages = {m.split(".")[-1] for m in MODULES if g.layer(m) == "stages"}
-    assert stages == g.STUDY_STAGES | g.PRODUCT_STAGES | g.SHIMS
+    assert stages == g.STUDY_STAGES | g.PRODUCT_STAGES
     assert not g.STUDY_STAGES & g.PRODUCT_STAGES
 
 
