@@ -29,7 +29,7 @@ from pipeline.data.hole_sets import read_hole_table
 from pipeline.learning.models import load_checkpoint
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
-TINY = ["train.steps=20", "train.eval_every=10", "model.width=16", "model.depth=1", "train.log_model=false",
+TINY = ["train.steps=20", "train.eval_every=10", "model.width=16", "model.depth=1", "runtime.log_model=false",
         "holes.unsup.size=300", "holes.sup.size=300", "holes.test.size=40", "train.val_size=50",
         "train.batch_size=64"]
 

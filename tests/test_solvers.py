@@ -226,9 +226,9 @@ def test_build_solver_names_bad_entries(jumbo8, tmp_path):
         build_solver("nm", {"kind": "nm", "couplings": [{"coeffs": {"theta2": 1}}]}, jumbo8, tmp_path)
 
 
-TINY = ["train.steps=30", "model.width=32", "train.log_model=false",
+TINY = ["train.steps=30", "model.width=32", "runtime.log_model=false",
         "benchmark.holes=12", "benchmark.single=2", "benchmark.methods=[cuikm,hybrid,nm,cuikm_nm,rbf,ceopso,ga]",
-        "benchmark.solvers.ga.max_holes=6", "benchmark.solvers.hybrid.deep_starts=16",
+        "benchmark.solvers.ga.max_holes=6", "solver.deep_starts=16",
         "benchmark.solvers.rbf.samples=300", "benchmark.solvers.rbf.train=250",
         "benchmark.solvers.ceopso.population=60", "benchmark.solvers.ceopso.iterations=20",
         "benchmark.solvers.ga.generations=10"]

@@ -18,7 +18,7 @@ from pipeline.params import composed_yaml
 
 pytestmark = pytest.mark.slow  # every test here runs stages as subprocesses
 
-TINY = ["experiment=quick", "train.steps=20", "train.eval_every=10", "model.width=32", "train.log_model=false",
+TINY = ["experiment=quick", "train.steps=20", "train.eval_every=10", "model.width=32", "runtime.log_model=false",
         "holes.unsup.size=500", "holes.sup.size=500", "holes.test.size=50", "train.val_size=100"]
 
 

@@ -46,7 +46,7 @@ STATUSES = ("ok", "inexact", "unsafe", "unreachable")
 
 @dataclass(frozen=True)
 class HybridSettings:
-    """``benchmark.solvers.hybrid`` / ``solve.solver``: tolerances, budget and starts."""
+    """The ``solver`` group (conf/solver/hybrid.yaml), read by solve and benchmark: tolerances, budget and starts."""
 
     tol_mm: float = field(default=0.01, metadata=rule(gt=0))  # exact: hole-seeking error at most this
     reach_tol_mm: float = field(default=1.0, metadata=rule(gt=0))  # beyond it, a hole is unreachable
