@@ -1,1 +1,1 @@
-"""Motion of a rig's booms: move times, timed profiles (and, later, collision-free moves)."""
+"""Motion of a rig's booms: move times, timed paths, dense clearance checks and collision-free moves."""
