@@ -12,10 +12,10 @@ boom standing or moving, no point moving more than 1 cm between checks):
 3. ``planned``: a sampling planner, OMPL's RRTConnect (Python bindings, ``pip install ompl``), in
    joint space within the joint ranges, then OMPL's path simplifier (vertex reduction and
    shortcutting), then the spec's profile on each edge, stopping at each waypoint, and the dense check
-   again. OMPL because it is the maintained reference library of sampling planners (BSD, Rice /
-   PickNik), ships Python wheels, and has a bidirectional RRT and a shortcutting simplifier ready;
-   its validity checks call back into this project's clearances, so the planner and the checks
-   cannot disagree on what is clear.
+   again. OMPL because it is the maintained reference library of sampling planners (BSD, Kavraki
+   Lab at Rice; MoveIt's default planners), ships Python wheels (2.0: cp311, no build), and has a
+   bidirectional RRT and a shortcutting simplifier ready; its state and edge checks call back into
+   this project's clearances, so the planner and the checks cannot disagree on what is clear.
 
 A move that no attempt made clear is returned as ``failed`` with the reason (each attempt's first
 violation), never as clear: its rows are the straight line's, for inspection, not for execution.
