@@ -265,3 +265,30 @@ def test_bad_input_is_named(rig, limits, jumbo8):
         plan_move(rig, "L", a, a, limits, kinds=("teleport",))
     with pytest.raises(InputError, match="not another boom"):
         plan_move(rig, "L", a, a, limits, others={"L": a})
+
+
+def test_trio_middle_boom_is_checked_against_both_neighbours(safety, limits, jumbo8):
+    """On the trio (8 m drift), M lifting its boom is clear of L and R by the oracle, both standing at
+    park; M swinging 45 deg towards L ends inside L's standing place and is refused, naming L."""
+    from pipeline.core.config import load_group_file
+    from pipeline.geometry.tunnel import Horseshoe
+
+    trio = load_rig("trio", Horseshoe.from_config(load_group_file("tunnel", "horseshoe_wide")), safety.distances,
+                    safety.n_points)
+    m = trio.index("M")
+    park = trio.booms[m].park
+    lift = park.clone()
+    lift[1] = math.radians(20)
+    move = plan_move(trio, "M", park, lift, limits, kinds=("straight",))
+    assert move.kind == "straight"
+    t, q = _samples(move.path.waypoints, limits, _crude_lever(jumbo8))
+    c = trio.booms[m].clearances(q)
+    assert min(float(c[k].min()) for k in c) >= 0
+    gaps = [float(trio.boom_clearance(m, q, j, trio.booms[j].park).min()) for j in (trio.index(n) for n in "LR")]
+    assert min(gaps) >= 0
+    assert move.clearances["boom"] == pytest.approx(min(gaps), abs=FINE)  # the nearer neighbour's, 2 mm drift
+    swing = park.clone()
+    swing[0] = math.radians(45)
+    assert float(trio.boom_clearance(m, swing, trio.index("L"), trio.booms[0].park)) < 0  # the premise
+    move = plan_move(trio, "M", park, swing, limits, planner=PLANNER)
+    assert move.kind == "failed" and "straight: boom L" in move.reason and "refused: the end qb" in move.reason
