@@ -286,7 +286,7 @@ def test_trio_middle_boom_is_checked_against_both_neighbours(safety, limits, jum
     assert min(float(c[k].min()) for k in c) >= 0
     gaps = [float(trio.boom_clearance(m, q, j, trio.booms[j].park).min()) for j in (trio.index(n) for n in "LR")]
     assert min(gaps) >= 0
-    assert move.clearances["boom"] == pytest.approx(min(gaps), abs=FINE)  # the nearer neighbour's, 2 mm drift
+    assert move.clearance.floor - 1e-12 <= min(gaps) <= move.clearances["boom"] + FINE  # as in _assert_clear
     swing = park.clone()
     swing[0] = math.radians(45)
     assert float(trio.boom_clearance(m, swing, trio.index("L"), trio.booms[0].park)) < 0  # the premise
