@@ -145,7 +145,7 @@ BAD = {
     "park length": (_node({1: {"park": [0, 0, 3.0]}}), r"bad\.yaml: boom 'R'\.park.*expected 8 values"),
     "park breaks the wall": (_node({0: {"park": [0, 0, 3.0, 0, 0, 45, 180, 1.0]}}),
                              r"bad\.yaml: boom 'L'\.park.*breaks safety"),
-    "unknown field": (_node({0: {"yaw": 10}}), r"bad\.yaml: boom 'L': unknown field\(s\) \['yaw'\]"),
+    "unknown field": (_node({0: {"yaw": 10}}), r"bad\.yaml: boom 'L'\.yaw: unknown setting"),
     "bad base": (_node({0: {"base": [0.0, 0.8]}}), r"bad\.yaml: boom 'L'\.base.*expected \[x, y, z\]"),
     "no booms": (_node(booms=[]), r"bad\.yaml: booms = \[\]"),
     "negative d_boom": (_node(d_boom=-1), r"bad\.yaml: rig\.d_boom = -1"),

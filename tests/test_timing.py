@@ -159,7 +159,7 @@ def _cfg(**changes):
     (_cfg(joint_speeds={**{f"q{i}": 1 for i in range(1, 9)}, "q3": -0.3}), r"bad\.yaml: joint_speeds\.q3 = -0\.3"),
     (_cfg(accel_time=0), r"bad\.yaml: accel_time = 0\.0: must be > 0"),
     (_cfg(drilling={"rate_m_per_min": 0}), r"bad\.yaml: drilling\.rate_m_per_min = 0\.0: must be > 0"),
-    (_cfg(jerk=1), r"bad\.yaml: unknown field\(s\) \['jerk'\]"),
+    (_cfg(jerk=1), r"bad\.yaml\.jerk: unknown setting"),
 ])
 def test_bad_motion_files(jumbo8, cfg, message):
     with pytest.raises(ConfigError, match=message):

@@ -12,6 +12,7 @@ import math
 from collections.abc import Mapping, Sequence
 
 from pipeline.core.errors import ConfigError
+from pipeline.core.settings import unknown_keys
 from pipeline.geometry.kinematics import CONVENTIONS, JOINT_PARAMS, Boom, Capsule, Joint, PointSpec
 
 ROW_KEYS = ("alpha", "a", "theta", "d")
@@ -42,9 +43,7 @@ def number(value, where: str) -> float:
 
 
 def reject_unknown(mapping: Mapping, allowed: set[str], where: str) -> None:
-    unknown = sorted(set(mapping) - allowed)
-    if unknown:
-        raise ConfigError(f"{where}: unknown field(s) {unknown}; allowed: {sorted(allowed)}")
+    unknown_keys(mapping, allowed, where)  # the settings' one check: names the key and the closest known one
 
 
 def _choice(value, options, where: str):

@@ -70,7 +70,7 @@ def parse_rig(node: Mapping, source: str) -> RigSpec:
     if not isinstance(node, Mapping):
         raise ConfigError(f"{source}: expected a mapping, got {node!r}")
     reject_unknown(node, RIG_KEYS, source)
-    settings = parse(RigSettings, node, f"{source}: rig")
+    settings = parse(RigSettings, {k: node[k] for k in ("name", "d_boom") if k in node}, f"{source}: rig")
     booms = node.get("booms")
     if isinstance(booms, (str, bytes)) or not isinstance(booms, Sequence) or not booms:
         raise ConfigError(f"{source}: booms = {booms!r}: expected a non-empty list of booms")
