@@ -1,5 +1,8 @@
-"""Shared fixtures: the reference boom and safety model, and config composition (as the stages see it)."""
+"""Shared fixtures: the reference boom and safety model, config composition (as the stages see it), and
+the tiny study (generate + CUIKM trained once per session) that tests get a private copy of."""
 
+import shutil
+import sqlite3
 from pathlib import Path
 
 import pytest
@@ -20,11 +23,52 @@ def safety(jumbo8):
 
 @pytest.fixture(scope="session")
 def make_cfg():
-    """``make_cfg(tmp, *overrides)``: the quick experiment writing data, MLflow store and artifacts under
-    ``tmp``, so a test never touches the checkout's own ``data/`` or ``mlflow.db``."""
+    """``make_cfg(tmp, *overrides)``: the tiny experiment (conf/experiment/tiny.yaml) writing data, MLflow store
+    and artifacts under ``tmp``, so a test never touches the checkout's own ``data/`` or ``mlflow.db``."""
 
     def make(tmp: Path, *overrides: str):
-        return compose(["experiment=quick", f"paths.data={tmp}/data", f"tracking.uri=sqlite:///{tmp}/mlflow.db",
+        return compose(["experiment=tiny", f"paths.data={tmp}/data", f"tracking.uri=sqlite:///{tmp}/mlflow.db",
                         f"tracking.artifact_root={tmp}/artifacts", *overrides])
 
     return make
+
+
+@pytest.fixture(scope="session")
+def _tiny_study(tmp_path_factory, make_cfg) -> Path:
+    """Built once: the tiny experiment's holes, the demo face and its CUIKM network, with their MLflow runs."""
+    from pipeline import demo_face, generate, train
+
+    tmp = tmp_path_factory.mktemp("tiny_study")
+    generate.run(make_cfg(tmp))
+    demo_face.run(make_cfg(tmp))  # the drill plans, as DVC's demo_face stage writes them
+    train.run(make_cfg(tmp, "method=cuikm"))
+    return tmp
+
+
+def copy_study(src: Path, dst: Path) -> Path:
+    """``src``'s data/, MLflow store and artifacts under ``dst``. The store names its artifact folders by
+    absolute path, so those are rewritten: a run logged in the copy must land in the copy."""
+    shutil.copytree(src / "data", dst / "data")
+    shutil.copytree(src / "artifacts", dst / "artifacts")
+    shutil.copy2(src / "mlflow.db", dst / "mlflow.db")
+    old, new = f"{src}/", f"{dst}/"
+    with sqlite3.connect(dst / "mlflow.db") as db:
+        tables = [t for (t,) in db.execute("select name from sqlite_master where type = 'table'")]
+        for table in tables:
+            for _, column, kind, *_ in db.execute(f"pragma table_info('{table}')").fetchall():
+                if "CHAR" in kind.upper() or "TEXT" in kind.upper():
+                    db.execute(f'update "{table}" set "{column}" = replace("{column}", ?, ?) '
+                               f'where instr("{column}", ?) > 0', (old, new, old))
+    return dst
+
+
+@pytest.fixture(scope="session")
+def copy_tiny_study(_tiny_study):
+    """``copy_tiny_study(dst)``: a private copy of the tiny study under ``dst`` (for module fixtures)."""
+    return lambda dst: copy_study(_tiny_study, Path(dst))
+
+
+@pytest.fixture
+def tiny_study(_tiny_study, tmp_path) -> Path:
+    """A private copy of the tiny study in ``tmp_path``: what a test writes there no other test sees."""
+    return copy_study(_tiny_study, tmp_path)

@@ -33,7 +33,7 @@ def _joints(boom, n, seed):
 
 @pytest.fixture(scope="module", autouse=True)
 def one_thread():
-    """The stage's setting (calibration.threads): tiny batched ops run far faster on one thread."""
+    """The stage's setting (runtime.calibrate_threads): tiny batched ops run far faster on one thread."""
     before = torch.get_num_threads()
     torch.set_num_threads(1)
     yield
@@ -280,13 +280,9 @@ def test_model_file_round_trip_and_errors(jumbo8, tmp_path):
         load_model(tmp_path / "other.yaml")
 
 
-def test_calibrate_stage_end_to_end_and_field_fit(jumbo8, tmp_path):
-    tiny = [f"paths.data={tmp_path}/data", "tracking.enabled=true", f"tracking.uri=sqlite:///{tmp_path}/ml.db",
-            f"tracking.artifact_root={tmp_path}/art", "calibration.n_measurements=[10,40]", "calibration.holdout=30",
-            "calibration.run_levels=[field]", "calibration.network.iterations=20",
-            "calibration.swarm.pso.iterations=5", "calibration.swarm.ssa.iterations=5",
-            "calibration.identification.basis_poses=60"]
-    df = run_calibrate(compose(tiny))
+@pytest.mark.slow
+def test_calibrate_stage_end_to_end_and_field_fit(jumbo8, tmp_path, make_cfg):
+    df = run_calibrate(make_cfg(tmp_path))  # experiment=tiny: the field level, 10 and 40 measurements
     out = tmp_path / "data" / "calibration"
     table = pd.read_csv(out / "results.csv")
     assert list(table.columns[:6]) == ["method", "level", "n_measurements", "collar_mm_mean", "collar_mm_max",
@@ -301,14 +297,14 @@ def test_calibrate_stage_end_to_end_and_field_fit(jumbo8, tmp_path):
     assert isinstance(load_model(out / "models" / "identified_field.yaml"), BoomWithErrors)
     from mlflow.tracking import MlflowClient
 
-    client = MlflowClient(f"sqlite:///{tmp_path}/ml.db")
-    (run,) = client.search_runs([client.get_experiment_by_name("boom-ik").experiment_id])
+    client = MlflowClient(f"sqlite:///{tmp_path}/mlflow.db")
+    (run,) = client.search_runs([client.get_experiment_by_name("boom-ik-tiny").experiment_id])
     assert run.data.metrics["field.identification.n40.collar_mm_mean"] == pytest.approx(ident["collar_mm_mean"])
     # field mode: a measurement file in degrees and millimetres -> an identified model file
     true = load_model(out / "models" / "true_field.yaml")
     q = _joints(jumbo8, 60, 12)
-    fit_cfg = compose([*tiny, "tracking.enabled=false", f"measurements={tmp_path}/field.csv",
-                       f"calibration.model_file={tmp_path}/fitted.yaml"])
+    fit_cfg = make_cfg(tmp_path, "tracking.enabled=false", f"measurements={tmp_path}/field.csv",
+                       f"calibration.model_file={tmp_path}/fitted.yaml")
     # noise-free data fitted as a 1 mm instrument: below the noise, the quality gate refuses it
     write_measurements(simulate(true, q, Sensor(0.0, 0.0), 0), jumbo8, tmp_path / "field.csv")
     with pytest.raises(InputError, match=r"calibration fit rejected.*noise: .*below the instrument's noise"):

@@ -52,6 +52,7 @@ def assert_same_joints(run, model, pose):
     torch.testing.assert_close(got, want, atol=1e-5, rtol=0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("batch", [1, 1000])
 @pytest.mark.parametrize("fmt", TORCH_FORMATS)
 def test_torch_exports_give_the_joints_of_eager_torch(exported, holes, fmt, batch):
@@ -59,6 +60,7 @@ def test_torch_exports_give_the_joints_of_eager_torch(exported, holes, fmt, batc
     assert_same_joints(formats.load_runner(fmt, out / f"cuikm{formats.FORMATS[fmt]}"), model, holes[:batch])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("batch", [1, 1000])
 def test_onnx_gives_the_joints_of_eager_torch(exported, holes, batch):
     pytest.importorskip("onnxruntime")
@@ -66,6 +68,7 @@ def test_onnx_gives_the_joints_of_eager_torch(exported, holes, batch):
     assert_same_joints(formats.load_runner("onnx", out / "cuikm.onnx"), model, holes[:batch])
 
 
+@pytest.mark.slow
 def test_onnx_file_is_named_and_described(exported):
     onnx = pytest.importorskip("onnx")
     out, _, manifest = exported
@@ -77,6 +80,7 @@ def test_onnx_file_is_named_and_described(exported):
     assert json.loads(props["boom_ik"])["joints"] == manifest["joints"]
 
 
+@pytest.mark.slow
 def test_manifest_describes_the_files(exported):
     out, _, manifest = exported
     assert manifest == json.loads((out / "cuikm.manifest.json").read_text())
@@ -117,6 +121,7 @@ def test_onnx_required_without_the_extra_is_a_config_error(tmp_path, monkeypatch
         export.run(cfg_for(tmp_path, "export.onnx=maybe"))
 
 
+@pytest.mark.slow
 def test_without_the_extra_onnx_is_skipped_with_one_log_line(tmp_path, holes, monkeypatch, caplog):
     monkeypatch.setattr(formats, "missing_onnx_packages", lambda: ["onnx", "onnxruntime"])
     save_tiny_network(tmp_path / "data", holes)
@@ -128,6 +133,7 @@ def test_without_the_extra_onnx_is_skipped_with_one_log_line(tmp_path, holes, mo
     assert manifests["cuikm"]["onnx_opset"] is None and "onnx" not in manifests["cuikm"]["versions"]
 
 
+@pytest.mark.slow
 def test_an_export_that_differs_from_torch_is_refused_and_removed(tmp_path, holes, monkeypatch):
     save_tiny_network(tmp_path / "data", holes)
     monkeypatch.setattr(formats, "max_abs_diff", lambda run, model, pose: 1e-3)

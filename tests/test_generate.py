@@ -17,27 +17,26 @@ from pipeline.generate import run
 from pipeline.geometry.collision import SAFETY_KINDS
 from pipeline.geometry.tunnel import Horseshoe
 
-SMALL = ["holes.unsup.size=1500", "holes.sup.size=800", "holes.test.size=300", "holes.sup_variants.sup_best.size=300",
-         "tracking.enabled=false"]
+SMALL = ["experiment=tiny", "tracking.enabled=false"]  # the tiny study's holes, without an MLflow store
 
 
 @pytest.fixture(scope="module")
-def generated(tmp_path_factory):
-    out = tmp_path_factory.mktemp("gen")
+def generated(tmp_path_factory, copy_tiny_study):
+    """This module's copy of the tiny study's holes (generated once per session), only read from."""
+    out = copy_tiny_study(tmp_path_factory.mktemp("gen")) / "data"
     cfg = compose([*SMALL, f"paths.data={out}"])
-    meta = run(cfg)
-    return out / "holes", meta, cfg
+    return out / "holes", json.loads((out / "holes" / "meta.json").read_text()), cfg
 
 
 def test_files_and_columns(generated):
-    holes, meta, _ = generated
+    holes, meta, cfg = generated
     names = ["train", *(f"test_group_{k}" for k in range(1, 6)), "sup"]
     for name in names:
         df = pd.read_parquet(holes / f"{name}.parquet")
         assert list(df.columns[:1]) == ["hole_id"] and set(POSE_COLUMNS) <= set(df.columns)
         assert np.isfinite(df[POSE_COLUMNS].to_numpy()).all()
-    assert len(pd.read_parquet(holes / "train.parquet")) == 1500
-    assert len(pd.read_parquet(holes / "test_group_3.parquet")) == 300
+    assert len(pd.read_parquet(holes / "train.parquet")) == cfg.holes.unsup.size
+    assert len(pd.read_parquet(holes / "test_group_3.parquet")) == cfg.holes.test.size
     sup = pd.read_parquet(holes / "sup.parquet")
     assert list(sup.columns) == ["hole_id", *(f"q{i}" for i in range(1, 9)), *POSE_COLUMNS]
     on_disk = json.loads((holes / "meta.json").read_text())
@@ -76,9 +75,10 @@ def test_test_groups_differ_from_each_other_and_from_training(generated):
     holes, _, _ = generated
     tables = [pd.read_parquet(holes / f"{n}.parquet")[POSE_COLUMNS].to_numpy() for n in
               ["train", "test_group_1", "test_group_2"]]
-    assert not np.allclose(tables[0][:300], tables[1]) and not np.allclose(tables[1], tables[2])
+    assert not np.allclose(tables[0][:len(tables[1])], tables[1]) and not np.allclose(tables[1], tables[2])
 
 
+@pytest.mark.slow
 def test_same_seed_gives_byte_identical_files(generated, tmp_path):
     holes, _, _ = generated
     run(compose([*SMALL, f"paths.data={tmp_path}"]))
@@ -86,6 +86,7 @@ def test_same_seed_gives_byte_identical_files(generated, tmp_path):
         assert (tmp_path / "holes" / f.name).read_bytes() == f.read_bytes(), f.name
 
 
+@pytest.mark.slow
 def test_other_seed_changes_the_data(generated, tmp_path):
     holes, _, _ = generated
     run(compose([*SMALL, "holes.unsup.seed=7", f"paths.data={tmp_path}"]))
@@ -93,10 +94,9 @@ def test_other_seed_changes_the_data(generated, tmp_path):
     assert (tmp_path / "holes" / "test_group_1.parquet").read_bytes() == (holes / "test_group_1.parquet").read_bytes()
 
 
+@pytest.mark.slow
 def test_cone_angle_is_a_config_value(tmp_path):
-    run(compose(["holes.unsup.size=500", "holes.sup.size=10", "holes.test.size=10", "holes.cone_deg=5",
-                 "holes.sup_variants.sup_best.size=10", "tracking.enabled=false",
-                 f"paths.data={tmp_path}"]))
+    run(compose([*SMALL, "holes.cone_deg=5", f"paths.data={tmp_path}"]))
     df = pd.read_parquet(tmp_path / "holes" / "train.parquet")
     axis = df[POSE_COLUMNS[3:]].to_numpy() - df[POSE_COLUMNS[:3]].to_numpy()
     assert math.degrees(np.arccos(np.clip(axis[:, 0] / 3.3, -1, 1)).max()) <= 5 + 1e-9

@@ -8,6 +8,7 @@ a fresh store; an interrupted or mixed hole set is detected; corrupt checkpoints
 
 import json
 import os
+import shutil
 import signal
 import sqlite3
 import subprocess
@@ -29,9 +30,8 @@ from pipeline.data.hole_sets import read_hole_table
 from pipeline.learning.models import load_checkpoint
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
-TINY = ["train.steps=20", "train.eval_every=10", "model.width=16", "model.depth=1", "runtime.log_model=false",
-        "holes.unsup.size=300", "holes.sup.size=300", "holes.test.size=40", "train.val_size=50",
-        "train.batch_size=64"]
+# the runs' bookkeeping is under test here, not what they learn: a few steps, no MLflow model
+SHORT = ["train.steps=20", "train.eval_every=10", "runtime.log_model=false"]
 
 
 def _env():
@@ -42,14 +42,14 @@ def _env():
 
 
 def _cli(tmp: Path, *args: str) -> list[str]:
-    return [sys.executable, "-m", "pipeline.train", "experiment=quick", *TINY, f"paths.data={tmp}/data",
+    return [sys.executable, "-m", "pipeline.train", "experiment=tiny", *SHORT, f"paths.data={tmp}/data",
             f"tracking.uri=sqlite:///{tmp}/mlflow.db", f"tracking.artifact_root={tmp}/art",
             f"hydra.run.dir={tmp}/h/{time.monotonic_ns()}", *args]
 
 
 def _client(tmp: Path):
     client = MlflowClient(f"sqlite:///{tmp}/mlflow.db")
-    exp = client.get_experiment_by_name("boom-ik-quick")
+    exp = client.get_experiment_by_name("boom-ik-tiny")
     return client, (client.search_runs([exp.experiment_id]) if exp else [])
 
 
@@ -71,16 +71,14 @@ def _wait_for_running_run(tmp: Path, proc, timeout=120) -> str:
 
 
 @pytest.fixture(scope="module")
-def holes(tmp_path_factory, make_cfg):
-    tmp = tmp_path_factory.mktemp("rel")
-    generate.run(make_cfg(tmp, *TINY))
-    return tmp
+def holes(tmp_path_factory, copy_tiny_study):
+    """This module's copy of the tiny study (its holes, its CUIKM checkpoint), only read from."""
+    return copy_tiny_study(tmp_path_factory.mktemp("rel"))
 
 
 def _fresh(tmp_path, holes) -> Path:
-    """A study folder with the shared hole set and its own (empty) MLflow store."""
-    (tmp_path / "data").mkdir()
-    os.symlink(holes / "data" / "holes", tmp_path / "data" / "holes")
+    """A study folder with a copy of the hole set and its own (empty) MLflow store."""
+    shutil.copytree(holes / "data" / "holes", tmp_path / "data" / "holes")
     return tmp_path
 
 
@@ -137,7 +135,7 @@ def test_a_sigkilled_run_is_marked_killed_by_the_next_run(tmp_path, holes):
     client, _ = _client(tmp)
     assert client.get_run(run_id).info.status == "RUNNING"  # what SIGKILL leaves behind
     settings = TrackingSettings.from_config({"enabled": True, "uri": f"sqlite:///{tmp}/mlflow.db",
-                                             "experiment": "boom-ik-quick", "artifact_root": str(tmp / "art")})
+                                             "experiment": "boom-ik-tiny", "artifact_root": str(tmp / "art")})
     with stage_run(settings, "next", {"stage": "test"}):
         pass
     stale = client.get_run(run_id)
@@ -185,7 +183,7 @@ def test_a_nan_joint_in_the_supervised_set_is_refused_before_any_run(tmp_path, h
     meta["files"]["sup.parquet"] = file_md5(tmp / "data" / "holes" / "sup.parquet")  # as if generate wrote it
     write_json(meta, tmp / "data" / "holes" / "meta.json")
     with pytest.raises(InputError, match=r"sup.parquet: column 'q4' has 1 non-finite .* row 7"):
-        train.run(make_cfg(tmp, *TINY, "method=sikm"))
+        train.run(make_cfg(tmp, "method=sikm"))
     assert not (tmp / "mlflow.db").exists() or not _client(tmp)[1]
 
 
@@ -235,7 +233,7 @@ def test_parallel_first_runs_on_a_fresh_store_do_not_race(tmp_path):
 def test_bad_train_settings_fail_before_any_run_or_file(tmp_path, holes, make_cfg, override):
     tmp = _fresh(tmp_path, holes)
     with pytest.raises(ConfigError, match=override.split("=")[0].replace(".", r"\.")):
-        train.run(make_cfg(tmp, *TINY, override))
+        train.run(make_cfg(tmp, override))
     assert not (tmp / "mlflow.db").exists()
     assert not (tmp / "data" / "models").exists()
 
@@ -244,14 +242,14 @@ def test_an_unwritable_data_folder_fails_before_training(tmp_path, holes, make_c
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
     with pytest.raises(InputError, match=r"paths.data = .*file/models: cannot create the folder"):
-        train.run(make_cfg(tmp_path, *TINY, f"paths.data={blocker}"))
+        train.run(make_cfg(tmp_path, f"paths.data={blocker}"))
 
 
 def test_an_unwritable_tracking_store_fails_at_once_with_the_setting_named(tmp_path, holes, make_cfg):
     tmp = _fresh(tmp_path, holes)
     (tmp / "file").write_text("not a folder")
     with pytest.raises(ConfigError, match=r"tracking.uri \(its folder\) = .*file/sub: cannot create the folder"):
-        train.run(make_cfg(tmp, *TINY, f"tracking.uri=sqlite:///{tmp}/file/sub/mlflow.db"))
+        train.run(make_cfg(tmp, f"tracking.uri=sqlite:///{tmp}/file/sub/mlflow.db"))
 
 
 def test_paper_baselines_checks_its_holes_before_the_swarms(tmp_path, make_cfg):
@@ -279,9 +277,10 @@ def test_corrupt_checkpoints_are_named_with_how_to_rebuild(tmp_path, holes):
     assert good is None or load_checkpoint(good)
 
 
+@pytest.mark.slow
 def test_a_hole_folder_mixing_two_generate_runs_is_detected(tmp_path, make_cfg):
-    generate.run(make_cfg(tmp_path / "a", *TINY))
-    generate.run(make_cfg(tmp_path / "b", *TINY, "holes.unsup.seed=7"))
+    generate.run(make_cfg(tmp_path / "a"))
+    generate.run(make_cfg(tmp_path / "b", "holes.unsup.seed=7"))
     a, b = tmp_path / "a" / "data" / "holes", tmp_path / "b" / "data" / "holes"
     read_hole_table(a, "train.parquet")
     (a / "train.parquet").write_bytes((b / "train.parquet").read_bytes())
@@ -289,8 +288,9 @@ def test_a_hole_folder_mixing_two_generate_runs_is_detected(tmp_path, make_cfg):
         read_hole_table(a, "train.parquet")
 
 
+@pytest.mark.slow
 def test_an_interrupted_generate_leaves_the_old_set_whole(tmp_path, make_cfg, monkeypatch):
-    generate.run(make_cfg(tmp_path, *TINY))
+    generate.run(make_cfg(tmp_path))
     holes = tmp_path / "data" / "holes"
     before = {p.name: p.read_bytes() for p in holes.iterdir()}
     import pipeline.data.hole_sets as hole_sets
@@ -306,7 +306,7 @@ def test_an_interrupted_generate_leaves_the_old_set_whole(tmp_path, make_cfg, mo
 
     monkeypatch.setattr(hole_sets, "write_parquet", dies_on_the_third_file)
     with pytest.raises(KeyboardInterrupt):
-        generate.run(make_cfg(tmp_path, *TINY, "holes.unsup.seed=9"))
+        generate.run(make_cfg(tmp_path, "holes.unsup.seed=9"))
     assert {p.name: p.read_bytes() for p in holes.iterdir()} == before
     assert not [p.name for p in (tmp_path / "data").iterdir() if p.name.startswith(".")]  # no staging folder left
 

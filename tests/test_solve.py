@@ -10,38 +10,33 @@ import pytest
 import torch
 from mlflow.tracking import MlflowClient
 
-from pipeline import demo_face, generate, solve, train
+from pipeline import solve
 from pipeline.core.config import PROJECT_ROOT
 from pipeline.core.errors import InputError
 from pipeline.evaluation.metrics import solution_table
 from pipeline.plans.csv_plan import read_csv_plan, write_csv_plan
 from pipeline.plans.iredes import write_iredes_plan
 
-TINY = ["train.steps=400", "runtime.log_model=true", "holes.unsup.size=500", "holes.sup.size=300",
-        "holes.test.size=20", "solver.deep_starts=32"]
 
-
-@pytest.fixture(scope="module")
-def study(tmp_path_factory, make_cfg):
-    tmp = tmp_path_factory.mktemp("solve")
-    generate.run(make_cfg(tmp, *TINY))
-    demo_face.run(make_cfg(tmp, *TINY))
-    trained = train.run(make_cfg(tmp, *TINY, "method=cuikm"))
-    plans = tmp / "data" / "plans"
+@pytest.fixture
+def study(tiny_study):
+    """A private copy of the tiny study (CUIKM trained with its MLflow model) and a small plan."""
+    plans = tiny_study / "data" / "plans"
     demo = read_csv_plan(plans / "demo_face.csv")
     small = demo.holes.iloc[::6].reset_index(drop=True)  # every hole type, 11 holes
     write_csv_plan(small, plans / "small.csv")
-    return tmp, trained
+    return tiny_study
 
 
 def solved(tmp, make_cfg, plan, *extra):
-    summary = solve.run(make_cfg(tmp, *TINY, f"plan={plan}", *extra))
+    summary = solve.run(make_cfg(tmp, f"plan={plan}", *extra))
     out = plan.with_name(f"{plan.stem}_solution.csv")
     return summary, pd.read_csv(out, keep_default_na=False)
 
 
+@pytest.mark.slow
 def test_the_solution_table_holds_every_hole_with_joints_errors_clearances_and_status(study, make_cfg, safety):
-    tmp, _ = study
+    tmp = study
     plan = tmp / "data" / "plans" / "small.csv"
     summary, table = solved(tmp, make_cfg, plan)
     holes = pd.read_csv(plan)
@@ -59,14 +54,15 @@ def test_the_solution_table_holds_every_hole_with_joints_errors_clearances_and_s
     figure, summary_file = plan.with_name("small_solution.png"), plan.with_name("small_solution.json")
     assert figure.stat().st_size > 20_000 and json.loads(summary_file.read_text())["ok"] == len(holes)
     client = MlflowClient(f"sqlite:///{tmp}/mlflow.db")
-    exp = client.get_experiment_by_name("boom-ik-quick")
+    exp = client.get_experiment_by_name("boom-ik-tiny")
     (run,) = client.search_runs([exp.experiment_id], "tags.stage = 'solve'")
     assert run.info.status == "FINISHED" and run.data.metrics["ok"] == len(holes)
     assert {"solution.json", "solution.png"} <= {a.path for a in client.list_artifacts(run.info.run_id)}
 
 
+@pytest.mark.slow
 def test_an_iredes_file_of_the_same_plan_gives_the_same_joints(study, make_cfg):
-    tmp, _ = study
+    tmp = study
     plans = tmp / "data" / "plans"
     write_iredes_plan(read_csv_plan(plans / "small.csv"), plans / "small_ir.xml")
     _, from_csv = solved(tmp, make_cfg, plans / "small.csv")
@@ -76,8 +72,9 @@ def test_an_iredes_file_of_the_same_plan_gives_the_same_joints(study, make_cfg):
     assert from_xml[joints].to_numpy(dtype=float) == pytest.approx(from_csv[joints].to_numpy(dtype=float), abs=1e-9)
 
 
+@pytest.mark.slow
 def test_bad_rows_are_named_and_the_good_ones_still_solved(study, make_cfg):
-    tmp, _ = study
+    tmp = study
     good = pd.read_csv(tmp / "data" / "plans" / "small.csv")
     bad = good.copy().astype({"collar_y": object, "toe_z": object})
     bad.loc[1, "collar_y"] = "abc"                                   # non-numeric
@@ -96,6 +93,29 @@ def test_bad_rows_are_named_and_the_good_ones_still_solved(study, make_cfg):
     assert (table["status"] == "ok").sum() == len(good) - 4
 
 
+@pytest.mark.slow
+def test_strict_mode_exits_non_zero_and_still_writes_the_solution(study, make_cfg):
+    tmp = study
+    plan = pd.read_csv(tmp / "data" / "plans" / "small.csv").iloc[:3].copy()
+    plan.loc[0, ["collar_x", "toe_x"]] = [25.0, 28.5]  # far beyond reach
+    path = tmp / "data" / "plans" / "strict.csv"
+    plan.to_csv(path, index=False)
+    with pytest.raises(SystemExit, match="strict: 1 of 3 holes are not ok"):
+        solve.run(make_cfg(tmp, f"plan={path}", "strict=true"))
+    table = pd.read_csv(path.with_name("strict_solution.csv"))
+    assert table["status"].tolist() == ["unreachable", "ok", "ok"]
+
+
+def test_a_plan_without_a_required_column_fails_before_anything_is_written(study, make_cfg):
+    tmp = study
+    path = tmp / "data" / "plans" / "nocol.csv"
+    pd.read_csv(tmp / "data" / "plans" / "small.csv").drop(columns=["toe_z"]).to_csv(path, index=False)
+    with pytest.raises(InputError, match=r"nocol.csv: missing column\(s\) \['toe_z'\]"):
+        solve.run(make_cfg(tmp, f"plan={path}"))
+    assert not path.with_name("nocol_solution.csv").exists()
+
+
+@pytest.mark.slow
 def test_invalid_rows_counts_rows_not_bad_cells(study, make_cfg):
     """A row with three bad cells is one invalid row (before: ``invalid_rows`` counted the cells)."""
     tmp, _ = study
@@ -112,44 +132,23 @@ def test_invalid_rows_counts_rows_not_bad_cells(study, make_cfg):
     assert summary["holes"] == len(good) - 1
 
 
-def test_strict_mode_exits_non_zero_and_still_writes_the_solution(study, make_cfg):
-    tmp, _ = study
-    plan = pd.read_csv(tmp / "data" / "plans" / "small.csv").iloc[:3].copy()
-    plan.loc[0, ["collar_x", "toe_x"]] = [25.0, 28.5]  # far beyond reach
-    path = tmp / "data" / "plans" / "strict.csv"
-    plan.to_csv(path, index=False)
-    with pytest.raises(SystemExit, match="strict: 1 of 3 holes are not ok"):
-        solve.run(make_cfg(tmp, *TINY, f"plan={path}", "strict=true"))
-    table = pd.read_csv(path.with_name("strict_solution.csv"))
-    assert table["status"].tolist() == ["unreachable", "ok", "ok"]
-
-
-def test_a_plan_without_a_required_column_fails_before_anything_is_written(study, make_cfg):
-    tmp, _ = study
-    path = tmp / "data" / "plans" / "nocol.csv"
-    pd.read_csv(tmp / "data" / "plans" / "small.csv").drop(columns=["toe_z"]).to_csv(path, index=False)
-    with pytest.raises(InputError, match=r"nocol.csv: missing column\(s\) \['toe_z'\]"):
-        solve.run(make_cfg(tmp, *TINY, f"plan={path}"))
-    assert not path.with_name("nocol_solution.csv").exists()
-
-
 @pytest.mark.slow
 def test_the_network_can_come_from_an_mlflow_model_uri(study, make_cfg):
-    tmp, trained = study
+    tmp = study
     client = MlflowClient(f"sqlite:///{tmp}/mlflow.db")
-    exp = client.get_experiment_by_name("boom-ik-quick")
+    exp = client.get_experiment_by_name("boom-ik-tiny")
     (run,) = client.search_runs([exp.experiment_id], "tags.stage = 'train'")
     plan = tmp / "data" / "plans" / "small.csv"
     summary, table = solved(tmp, make_cfg, plan, f"solve.model_uri=runs:/{run.info.run_id}/cuikm")
     assert summary["ok"] == len(table) and table["method"].iloc[0] == f"hybrid (runs:/{run.info.run_id}/cuikm)"
     with pytest.raises(InputError, match=r"solve.model_uri = runs:/nope/model: cannot load it"):
-        solve.run(make_cfg(tmp, *TINY, f"plan={plan}", "solve.model_uri=runs:/nope/model"))
+        solve.run(make_cfg(tmp, f"plan={plan}", "solve.model_uri=runs:/nope/model"))
 
 
 @pytest.mark.slow
 def test_the_demo_face_is_solved_with_every_hole_ok_from_the_command_line(study):
-    tmp, _ = study
-    cmd = [sys.executable, "-m", "pipeline.solve", "experiment=quick", *TINY, f"paths.data={tmp}/data",
+    tmp = study
+    cmd = [sys.executable, "-m", "pipeline.solve", "experiment=tiny", f"paths.data={tmp}/data",
            f"tracking.uri=sqlite:///{tmp}/mlflow.db", f"tracking.artifact_root={tmp}/artifacts",
            f"hydra.run.dir={tmp}/hydra", "strict=true"]
     done = subprocess.run(cmd, cwd=PROJECT_ROOT, capture_output=True, text=True, timeout=600)

@@ -16,10 +16,8 @@ from pipeline.core.config import PROJECT_ROOT
 from pipeline.evaluation.pareto import pareto_front, summary_table
 from pipeline.params import composed_yaml
 
-pytestmark = pytest.mark.slow  # every test here runs stages as subprocesses
-
-TINY = ["experiment=quick", "train.steps=20", "train.eval_every=10", "model.width=32", "runtime.log_model=false",
-        "holes.unsup.size=500", "holes.sup.size=500", "holes.test.size=50", "train.val_size=100"]
+# the sweeps' bookkeeping is under test, not what the jobs learn: a few steps, no MLflow model
+SHORT = ["experiment=tiny", "train.steps=20", "train.eval_every=10", "runtime.log_model=false"]
 
 
 def _env():
@@ -36,19 +34,18 @@ def _run(args, cwd=PROJECT_ROOT, timeout=600):
 
 
 @pytest.fixture(scope="module")
-def tiny_data(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("sweep")
-    _run([sys.executable, "-m", "pipeline.generate", *TINY, f"paths.data={tmp}/data", f"hydra.run.dir={tmp}/h"])
-    return tmp
+def tiny_data(tmp_path_factory, copy_tiny_study):
+    """This module's copy of the tiny study; each sweep writes its own folder and store in it."""
+    return copy_tiny_study(tmp_path_factory.mktemp("sweep"))
 
 
 def _sweep(tmp, name, *extra):
-    args = [sys.executable, "-m", "pipeline.train", "-m", *TINY, f"paths.data={tmp}/data",
+    args = [sys.executable, "-m", "pipeline.train", "-m", *SHORT, f"paths.data={tmp}/data",
             f"tracking.uri=sqlite:///{tmp}/{name}.db", f"tracking.artifact_root={tmp}/{name}-art",
             f"hydra.sweep.dir={tmp}/{name}", "method=cuikm", "method.mu=1,10", *extra]
     done = _run(args)
     client = MlflowClient(f"sqlite:///{tmp}/{name}.db")
-    exp = client.get_experiment_by_name("boom-ik-quick")
+    exp = client.get_experiment_by_name("boom-ik-tiny")
     runs = client.search_runs([exp.experiment_id])
     return done, client, runs
 
@@ -70,11 +67,13 @@ def _check_parent_and_children(client, runs, tmp, name):
     assert (tmp / name / "0" / "cuikm.pt").is_file() and (tmp / name / "1" / "cuikm.pt").is_file()
 
 
+@pytest.mark.slow
 def test_two_job_multirun_makes_one_parent_with_two_children(tiny_data):
     _, client, runs = _sweep(tiny_data, "basic")
     _check_parent_and_children(client, runs, tiny_data, "basic")
 
 
+@pytest.mark.slow
 def test_joblib_launcher_runs_jobs_in_parallel_without_losing_runs(tiny_data):
     done, client, runs = _sweep(tiny_data, "joblib", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2")
     _check_parent_and_children(client, runs, tiny_data, "joblib")
@@ -83,8 +82,9 @@ def test_joblib_launcher_runs_jobs_in_parallel_without_losing_runs(tiny_data):
     assert a.info.start_time < b.info.end_time and b.info.start_time < a.info.end_time  # that overlapped in time
 
 
+@pytest.mark.slow
 def test_sweep_without_mlflow_still_summarises(tiny_data):
-    args = [sys.executable, "-m", "pipeline.train", "-m", *TINY, f"paths.data={tiny_data}/data",
+    args = [sys.executable, "-m", "pipeline.train", "-m", *SHORT, f"paths.data={tiny_data}/data",
             "tracking.enabled=false", f"hydra.sweep.dir={tiny_data}/plain", "method=cuikm", "method.mu=1,10"]
     _run(args)
     assert len(pd.read_csv(tiny_data / "plain" / "summary.csv")) == 2
@@ -118,14 +118,15 @@ def _copy_checkout(dst: Path) -> None:
     subprocess.run(["git", "init", "-q"], cwd=dst, check=True)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(shutil.which("git") is None, reason="DVC needs git")
 def test_dvc_repro_of_the_quick_experiment_then_up_to_date_and_a_param_change_reruns_the_right_stages(tmp_path):
-    """The quick experiment as it is (its own paths.data=data/quick), MLflow on, in a copy of the checkout."""
+    """The tiny experiment (its own paths.data=data/tiny), every stage, MLflow on, in a copy of the checkout."""
     _copy_checkout(tmp_path)
-    _run([sys.executable, "-m", "pipeline.params", *TINY], cwd=tmp_path)
+    _run([sys.executable, "-m", "pipeline.params", *SHORT], cwd=tmp_path)
     dvc = [sys.executable, "-m", "dvc"]
     _run([*dvc, "repro"], cwd=tmp_path)
-    d = "data/quick"
+    d = "data/tiny"
     for out in ["holes/train.parquet", "models/sikm.pt", "models/cuikm.pt", "eval/metrics.json",
                 "eval/collisions.csv", "report/README.md"]:
         assert (tmp_path / d / out).is_file(), out
@@ -160,13 +161,14 @@ def _check_dataset_digests_are_dvc_hashes(repo: Path, d: str) -> None:
     meta = json.loads((repo / d / "holes/meta.json").read_text())
     assert meta["files"] == {k: v for k, v in dvc_md5.items() if k != "meta.json"}
     client = MlflowClient(f"sqlite:///{repo}/mlflow.db")
-    exp = client.get_experiment_by_name("boom-ik-quick")
+    exp = client.get_experiment_by_name("boom-ik-tiny")
     assert exp.tags["mlflow.experimentKind"] == "custom_model_development"
     (uikm,) = client.search_runs([exp.experiment_id], "tags.method = 'uikm'")
     logged = {i.dataset.name: i.dataset.digest for i in uikm.inputs.dataset_inputs}
     assert logged == {"train.parquet": dvc_md5["train.parquet"]}
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(os.environ.get("BOOM_IK_RAY_TESTS") != "1", reason="opt-in: BOOM_IK_RAY_TESTS=1, [ray] extra")
 def test_ray_launcher_against_a_local_head(tiny_data):
     """The same two-job sweep on a Ray cluster: a local head started (and stopped) by the test."""

@@ -9,7 +9,7 @@ import pytest
 import torch
 from mlflow.tracking import MlflowClient
 
-from pipeline import evaluate, generate, train
+from pipeline import evaluate, train
 from pipeline.core.config import compose
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.data.holes import HoleSampling, sample_holes, sample_joints
@@ -22,25 +22,25 @@ METHODS = ["sikm", "uikm", "cuikm"]
 
 
 @pytest.fixture(scope="module")
-def study(tmp_path_factory, make_cfg):
-    tmp = tmp_path_factory.mktemp("study")
-    generate.run(make_cfg(tmp))
-    trained = {m: train.run(make_cfg(tmp, f"method={m}")) for m in METHODS}
+def study(tmp_path_factory, copy_tiny_study, make_cfg):
+    """The tiny study (its CUIKM already trained) with SIKM and UIKM trained beside it, all evaluated."""
+    tmp = copy_tiny_study(tmp_path_factory.mktemp("study"))
+    trained = {m: train.run(make_cfg(tmp, f"method={m}")) for m in METHODS if m != "cuikm"}
     metrics = evaluate.run(make_cfg(tmp, f"eval.methods=[{','.join(METHODS)}]"))
     return tmp, trained, metrics
 
 
 @pytest.mark.slow
-def test_quick_experiment_writes_everything(study):
+def test_quick_experiment_writes_everything(study, make_cfg):
     tmp, _, metrics = study
-    data = tmp / "data"
+    data, per_group = tmp / "data", make_cfg(tmp).holes.test.size
     for m in METHODS:
         assert (data / "models" / f"{m}.pt").is_file()
         for k in range(1, 6):
             pred = pd.read_parquet(data / "eval" / "predictions" / f"{m}_group{k}.parquet")
             assert list(pred.columns) == ["hole_id", "collar_x", "collar_y", "collar_z", "preview_x", "preview_y",
                                           "preview_z", *(f"q{i}" for i in range(1, 9))]
-            assert len(pred) == 200
+            assert len(pred) == per_group
     on_disk = json.loads((data / "eval" / "metrics.json").read_text())
     assert set(on_disk) == set(METHODS)
     for m in METHODS:
@@ -53,23 +53,24 @@ def test_quick_experiment_writes_everything(study):
     assert list(table.columns) == ["group", "method", *SAFETY_KINDS] and len(table) == 15
     for m in METHODS:  # the table and the metrics agree
         assert table[table.method == m][list(SAFETY_KINDS)].to_numpy().sum() == pytest.approx(
-            on_disk[m]["collision_rate_paper"] * 1000)
+            on_disk[m]["collision_rate_paper"] * 5 * per_group)
     for fig in ["training_curves.png", "face_projection.png", "method_comparison.png"]:
         assert (data / "eval" / "figures" / fig).stat().st_size > 10_000
 
 
 @pytest.mark.slow
-def test_mlflow_holds_the_runs(study):
+def test_mlflow_holds_the_runs(study, make_cfg):
     tmp, _, _ = study
+    cfg = make_cfg(tmp)
     client = MlflowClient(f"sqlite:///{tmp}/mlflow.db")
-    exp = client.get_experiment_by_name("boom-ik-quick")
+    exp = client.get_experiment_by_name("boom-ik-tiny")
     runs = client.search_runs([exp.experiment_id])
     by_name = {r.info.run_name: r for r in runs}
     assert {"train-sikm", "train-uikm", "train-cuikm", "evaluate"} <= set(by_name)
     for m in METHODS:
         run = by_name[f"train-{m}"]
         assert run.info.status == "FINISHED"
-        assert run.data.params["method.name"] == m and run.data.params["model.width"] == "64"
+        assert run.data.params["method.name"] == m and run.data.params["model.width"] == str(cfg.model.width)
         assert run.data.params["safety.wall"] == "0.5"
         steps = [x.step for x in client.get_metric_history(run.info.run_id, "val_hole_mm")]
         assert steps == [0, 50, 100, 149]
@@ -180,9 +181,7 @@ def test_bad_method_config_is_named(tmp_path):
         pose_loss(torch.zeros(2, 6), torch.zeros(2, 6), "l3")
 
 
-@pytest.mark.slow
-def test_evaluate_without_models_says_what_is_missing(tmp_path, make_cfg):
-    generate.run(make_cfg(tmp_path))
-    with pytest.raises(InputError, match=r"sikm.pt: no such model checkpoint"):
-        evaluate.run(make_cfg(tmp_path))
-    assert not (tmp_path / "data" / "eval").exists()  # nothing half-written
+def test_evaluate_without_models_says_what_is_missing(tiny_study, make_cfg):
+    with pytest.raises(InputError, match=r"sikm.pt: no such model checkpoint"):  # the tiny study has CUIKM only
+        evaluate.run(make_cfg(tiny_study))
+    assert not (tiny_study / "data" / "eval").exists()  # nothing half-written

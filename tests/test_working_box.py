@@ -16,11 +16,10 @@ from pipeline.solvers.labels import local_search
 
 
 @pytest.fixture(scope="module")
-def sup(tmp_path_factory, make_cfg):
-    tmp = tmp_path_factory.mktemp("sup")
-    cfg = make_cfg(tmp, "holes.sup.size=3000", "holes.unsup.size=300", "holes.test.size=20")
-    generate.run(cfg)
-    return read_hole_table(tmp / "data" / "holes", "sup.parquet"), cfg
+def sup(tmp_path_factory, copy_tiny_study, make_cfg):
+    """Omega_sup of the tiny study (generated once per session), drawn in the working box."""
+    tmp = copy_tiny_study(tmp_path_factory.mktemp("sup"))
+    return read_hole_table(tmp / "data" / "holes", "sup.parquet"), make_cfg(tmp)
 
 
 def test_every_sample_lies_in_the_box_and_its_pose_is_its_forward_kinematics(sup, jumbo8):
@@ -78,6 +77,7 @@ def test_generate_refuses_a_bad_box_before_writing(tmp_path, make_cfg):
     assert not (tmp_path / "data").exists()
 
 
+@pytest.mark.slow
 def test_full_ranges_stay_available(tmp_path, make_cfg):
     cfg = make_cfg(tmp_path, "sup_box=full", "holes.sup.size=500", "holes.unsup.size=200", "holes.test.size=20")
     assert cfg.holes.sup.box is None
