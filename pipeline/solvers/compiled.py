@@ -1,0 +1,471 @@
+"""The hybrid solver with its arithmetic compiled (numba): one hole in well under a millisecond.
+
+The same solver as :class:`~pipeline.solvers.hybrid.HybridSolver`, the same settings, statuses and
+answers; only where the time goes changes:
+
+* **the fast path**, for every hole at once (``prange`` over holes): the network's start (for one
+  hole, the checkpoint's weights through a compiled MLP; for a batch, the torch network, whose
+  matrix products are already as fast as the CPU allows), the target made reachable
+  (:meth:`HybridSolver.consistent`), Levenberg-Marquardt on the pose alone, and one clearance check.
+  A hole exact and clear by ``margin`` is done there (most holes), with its errors and clearances;
+* **every other hole** goes through the hybrid's own cascade (:meth:`HybridSolver.solve`: safety
+  rows, perturbed, random and deep starts, the same starts, ranking and statuses), with each
+  :meth:`refine` a compiled kernel over holes and their starts instead of torch's batched loop.
+  A hole's starts run in lockstep and stop together once one is done, as the torch version's
+  ``owner`` rule does.
+
+The kernels mirror the torch code line for line (same damping rule, the same re-measurement of
+clearances, the same projection onto the joint ranges); tests/test_compiled.py holds the statuses
+equal to the torch hybrid's. Torch stays the solver for training and for GPU batches.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import torch
+from numba import njit, prange
+
+from pipeline.core.errors import InputError
+from pipeline.geometry.collision import SAFETY_KINDS
+from pipeline.geometry.compiled_kinematics import (
+    ChainArrays,
+    SafetyArrays,
+    clearance_jacobians_into,
+    clearances_into,
+    frames_into,
+    pose6_jacobian_into,
+)
+from pipeline.learning.models import ACTIVATIONS, IKNet
+from pipeline.solvers.base import HoleTargets, NetworkSolver, SolveResult, Targets
+from pipeline.solvers.hybrid import STATUSES, Candidates, HybridSettings, HybridSolver
+
+N_ROWS = 6 + len(SAFETY_KINDS)  # pose rows, then one row per clearance (zero where inactive)
+ACTIVATION_CODES = {name: i for i, name in enumerate(sorted(ACTIVATIONS))}  # gelu, relu, silu, tanh
+
+
+# ---------------------------------------------------------------------------------------------- the network
+class CompiledMLP:
+    """An :class:`IKNet`'s weights as float32 arrays for :func:`mlp_forward` (the same arithmetic
+    as the module: standardise, hidden layers, sigmoid, scale into the joint ranges)."""
+
+    def __init__(self, model: IKNet):
+        linears = [m for m in model.net if isinstance(m, torch.nn.Linear)]
+        as32 = lambda t: np.ascontiguousarray(t.detach().cpu().float().numpy())  # noqa: E731
+        self.W0, self.b0 = as32(linears[0].weight), as32(linears[0].bias)
+        hidden = linears[1:-1]
+        width = self.W0.shape[0]
+        self.Wh = np.stack([as32(m.weight) for m in hidden]) if hidden else np.zeros((0, width, width), np.float32)
+        self.bh = np.stack([as32(m.bias) for m in hidden]) if hidden else np.zeros((0, width), np.float32)
+        self.Wl, self.bl = as32(linears[-1].weight), as32(linears[-1].bias)
+        self.act = ACTIVATION_CODES[model.hparams["activation"]]
+        self.mean, self.std = as32(model.in_mean), as32(model.in_std)
+        self.lower, self.span = as32(model.lower), as32(model.span)
+
+    def __call__(self, pose: np.ndarray) -> np.ndarray:
+        """Joints ``(B, n)`` float64 of poses ``(B, 6)``."""
+        return mlp_forward(np.ascontiguousarray(pose, dtype=np.float32), self.W0, self.b0, self.Wh, self.bh, self.Wl,
+                           self.bl, self.act, self.mean, self.std, self.lower, self.span)
+
+
+@njit(cache=True)
+def _activate(v, act):
+    x = float(v)
+    if act == 0:  # gelu (exact, erf)
+        return np.float32(0.5 * x * (1.0 + math.erf(x / math.sqrt(2.0))))
+    if act == 1:  # relu
+        return np.float32(max(x, 0.0))
+    if act == 2:  # silu
+        return np.float32(x / (1.0 + math.exp(-x)))
+    return np.float32(math.tanh(x))
+
+
+@njit(cache=True)
+def _dense(W, b, x, out, act):
+    for i in range(W.shape[0]):
+        s = np.float32(0.0)
+        for j in range(W.shape[1]):
+            s += W[i, j] * x[j]
+        s += b[i]
+        out[i] = _activate(s, act) if act >= 0 else s
+
+
+@njit(cache=True)
+def mlp_forward(pose, W0, b0, Wh, bh, Wl, bl, act, mean, std, lower, span):
+    B, width, n = pose.shape[0], W0.shape[0], Wl.shape[0]
+    out = np.empty((B, n))
+    x = np.empty(pose.shape[1], dtype=np.float32)
+    h, g = np.empty(width, dtype=np.float32), np.empty(width, dtype=np.float32)
+    z = np.empty(n, dtype=np.float32)
+    for b in range(B):
+        for i in range(x.shape[0]):
+            x[i] = (pose[b, i] - mean[i]) / std[i]
+        _dense(W0, b0, x, h, act)
+        for k in range(Wh.shape[0]):
+            _dense(Wh[k], bh[k], h, g, act)
+            h[:] = g
+        _dense(Wl, bl, h, z, -1)
+        for i in range(n):
+            sig = np.float32(1.0 / (1.0 + math.exp(-float(z[i]))))
+            out[b, i] = float(lower[i] + span[i] * sig)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- LM on one hole
+@njit(cache=True)
+def _project(x, lo, hi, wraps):
+    for i in range(x.shape[0]):
+        if wraps[i]:  # torch.remainder: the result takes the divisor's sign
+            m = np.fmod(x[i] - lo[i], 2 * math.pi)
+            if m < 0.0:
+                m += 2 * math.pi
+            x[i] = m + lo[i]
+        else:
+            x[i] = min(max(x[i], lo[i]), hi[i])
+
+
+@njit(cache=True)
+def _evaluate(x, free, q, target, mode, c_prev, margin, guard, weight, rows, modified, joint_row, joint_param,
+              tool, axis_frame, along_x, revolute, moves, depth, end_frame, end_along, radius, skip, pairs, d_self,
+              surface, half_width, wall_height, t, F, pose, Jfull, Gfull, arg, frac, r, J, c):
+    """The hybrid's ``_rows`` for one start: residual ``r (N_ROWS,)`` (pose rows, then the active
+    clearance rows ``w (c - margin)``, zero elsewhere), its Jacobian ``J (N_ROWS, n_free)`` and the
+    clearances ``c (4,)``. ``mode`` 0: pose only (clearances NaN, not measured); 1: clearances
+    re-measured only where ``c_prev``'s smallest is below ``guard``. Returns (hole error, measured)."""
+    nf = free.shape[0]
+    for i in range(nf):
+        q[free[i]] = x[i]
+    frames_into(q, rows, modified, joint_row, joint_param, tool, F)
+    pose6_jacobian_into(F, depth, axis_frame, along_x, revolute, pose, Jfull)
+    for i in range(6):
+        r[i] = pose[i] - target[i]
+        for j in range(nf):
+            J[i, j] = Jfull[i, free[j]]
+    hole = 0.5 * (math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+                  + math.sqrt(r[3] * r[3] + r[4] * r[4] + r[5] * r[5]))
+    for k in range(4):
+        r[6 + k] = 0.0
+        for j in range(nf):
+            J[6 + k, j] = 0.0
+    if mode == 0:
+        for k in range(4):
+            c[k] = np.nan
+        return hole, False
+    fresh = min(min(c_prev[0], c_prev[1]), min(c_prev[2], c_prev[3])) < guard
+    for k in range(4):
+        c[k] = c_prev[k]
+    if fresh:
+        clearances_into(F, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t,
+                        c, arg, frac)
+    any_active = False
+    for k in range(4):
+        any_active = any_active or c[k] < margin
+    if any_active:
+        cc = np.empty(4)
+        clearance_jacobians_into(F, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width,
+                                 wall_height, t, axis_frame, along_x, revolute, moves, cc, Gfull)
+        for k in range(4):
+            if c[k] < margin:
+                r[6 + k] = weight * (c[k] - margin)
+                for j in range(nf):
+                    J[6 + k, j] = weight * Gfull[k, free[j]]
+    return hole, fresh
+
+
+@njit(cache=True)
+def _solve_into(A, b, s):
+    """``s = A^-1 b`` by Gaussian elimination with partial pivoting (A is overwritten)."""
+    n = b.shape[0]
+    for i in range(n):
+        s[i] = b[i]
+    for k in range(n):
+        p = k
+        for i in range(k + 1, n):
+            if abs(A[i, k]) > abs(A[p, k]):
+                p = i
+        if p != k:
+            for j in range(n):
+                A[k, j], A[p, j] = A[p, j], A[k, j]
+            s[k], s[p] = s[p], s[k]
+        for i in range(k + 1, n):
+            f = A[i, k] / A[k, k]
+            for j in range(k, n):
+                A[i, j] -= f * A[k, j]
+            s[i] -= f * s[k]
+    for k in range(n - 1, -1, -1):
+        v = s[k]
+        for j in range(k + 1, n):
+            v -= A[k, j] * s[j]
+        s[k] = v / A[k, k]
+
+
+@njit(cache=True)
+def refine_hole(X0, target, use_safety, max_iters, damping, stop_tol, margin, guard, weight, free, fixed, lo, hi,
+                wraps, rows, modified, joint_row, joint_param, tool, axis_frame, along_x, revolute, moves, depth,
+                end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t,
+                X, R6, C, iters):
+    """The hybrid's :meth:`refine` for the ``K`` starts ``X0 (K, n_free)`` of one hole: each start
+    runs LM until exact (and, with ``use_safety``, clear); once one start is done, the hole's other
+    starts stop where they are. Writes the joints ``X``, pose residuals ``R6``, clearances ``C``
+    (always measured at ``X``) and iteration counts ``iters``."""
+    K, nf, n = X0.shape[0], free.shape[0], fixed.shape[0]
+    mode = 1 if use_safety else 0
+    q = fixed.copy()
+    F = np.empty((rows.shape[0] + 2, 4, 4))
+    pose, Jfull, Gfull = np.empty(6), np.empty((6, n)), np.empty((4, n))
+    arg, frac = np.empty(4, dtype=np.int64), np.empty(4)
+    minus_inf = np.full(4, -np.inf)
+    r, J, c = np.empty((K, N_ROWS)), np.empty((K, N_ROWS, nf)), np.empty((K, 4))
+    hole, fresh, cost, lam = np.empty(K), np.zeros(K, dtype=np.bool_), np.empty(K), np.full(K, damping)
+    rn, Jn, cn = np.empty(N_ROWS), np.empty((N_ROWS, nf)), np.empty(4)
+    xn, A, g, step = np.empty(nf), np.empty((nf, nf)), np.empty(nf), np.empty(nf)
+    for k in range(K):
+        X[k] = X0[k]
+        _project(X[k], lo, hi, wraps)
+        hole[k], fresh[k] = _evaluate(X[k], free, q, target, mode, minus_inf, margin, guard, weight, rows, modified,
+                                      joint_row, joint_param, tool, axis_frame, along_x, revolute, moves, depth,
+                                      end_frame, end_along, radius, skip, pairs, d_self, surface, half_width,
+                                      wall_height, t, F, pose, Jfull, Gfull, arg, frac, r[k], J[k], c[k])
+        cost[k] = (r[k] * r[k]).sum()
+        iters[k] = 0
+    for it in range(max_iters + 1):
+        any_done = False
+        for k in range(K):
+            done = hole[k] <= stop_tol and (not use_safety or c[k].min() >= 0)
+            if use_safety and done and not fresh[k]:  # exact on clearances measured earlier: measure them here
+                hole[k], fresh[k] = _evaluate(X[k], free, q, target, mode, minus_inf, margin, guard, weight, rows,
+                                              modified, joint_row, joint_param, tool, axis_frame, along_x, revolute,
+                                              moves, depth, end_frame, end_along, radius, skip, pairs, d_self,
+                                              surface, half_width, wall_height, t, F, pose, Jfull, Gfull, arg, frac,
+                                              r[k], J[k], c[k])
+                cost[k] = (r[k] * r[k]).sum()
+                done = hole[k] <= stop_tol and c[k].min() >= 0
+            any_done = any_done or done
+        if any_done or it == max_iters:
+            break
+        for k in range(K):
+            for i in range(nf):
+                for j in range(nf):
+                    s = 0.0
+                    for m in range(N_ROWS):
+                        s += J[k, m, i] * J[k, m, j]
+                    A[i, j] = s
+                s = 0.0
+                for m in range(N_ROWS):
+                    s += J[k, m, i] * r[k, m]
+                g[i] = -s
+            for i in range(nf):  # Marquardt scaling, as the torch hybrid
+                A[i, i] += lam[k] * (A[i, i] + 1e-9)
+            _solve_into(A, g, step)
+            for i in range(nf):
+                xn[i] = X[k, i] + step[i]
+            _project(xn, lo, hi, wraps)
+            hn, fn = _evaluate(xn, free, q, target, mode, c[k], margin, guard, weight, rows, modified, joint_row,
+                               joint_param, tool, axis_frame, along_x, revolute, moves, depth, end_frame, end_along,
+                               radius, skip, pairs, d_self, surface, half_width, wall_height, t, F, pose, Jfull,
+                               Gfull, arg, frac, rn, Jn, cn)
+            cost_new = (rn * rn).sum()
+            if cost_new < cost[k]:
+                X[k] = xn
+                r[k] = rn
+                J[k] = Jn
+                c[k] = cn
+                hole[k], fresh[k], cost[k] = hn, fn, cost_new
+                lam[k] = max(lam[k] * 0.3, 1e-12)
+            else:
+                lam[k] = min(lam[k] * 10.0, 1e8)
+            iters[k] += 1
+    for k in range(K):
+        for i in range(6):
+            R6[k, i] = r[k, i]
+        C[k] = c[k]
+        if not fresh[k]:  # the answer's own clearances, wherever the loop reused older ones
+            for i in range(nf):
+                q[free[i]] = X[k, i]
+            frames_into(q, rows, modified, joint_row, joint_param, tool, F)
+            clearances_into(F, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height,
+                            t, C[k], arg, frac)
+
+
+@njit(cache=True, parallel=True)
+def refine_holes(X0, targets, use_safety, max_iters, damping, stop_tol, margin, guard, weight, free, fixed, lo, hi,
+                 wraps, rows, modified, joint_row, joint_param, tool, axis_frame, along_x, revolute, moves, depth,
+                 end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t):
+    """:func:`refine_hole` for ``H`` holes of ``K`` starts each, ``X0 (H, K, n_free)``, in parallel."""
+    H, K, nf = X0.shape
+    X, R6, C = np.empty((H, K, nf)), np.empty((H, K, 6)), np.empty((H, K, 4))
+    iters = np.empty((H, K), dtype=np.int64)
+    for h in prange(H):
+        refine_hole(X0[h], targets[h], use_safety, max_iters, damping, stop_tol, margin, guard, weight, free, fixed,
+                    lo, hi, wraps, rows, modified, joint_row, joint_param, tool, axis_frame, along_x, revolute,
+                    moves, depth, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width,
+                    wall_height, t, X[h], R6[h], C[h], iters[h])
+    return X, R6, C, iters
+
+
+# ---------------------------------------------------------------------------------------------- the fast path
+@njit(cache=True)
+def _fast_hole(pose, q0, max_iters, damping, stop_tol, tol, margin, guard, weight, free, fixed, lo, hi, wraps,
+               rows, modified, joint_row, joint_param, tool, axis_frame, along_x, revolute, moves, depth, end_frame,
+               end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t, Q, E, C, iters):
+    """One hole's fast path: reachable target, pose-only LM from ``q0``, errors ``E`` (start,
+    preview, hole, direction; against the pose as given) and clearances ``C``. Returns whether the
+    hole is done: exact, and clear by at least ``margin``."""
+    nf = free.shape[0]
+    target = np.empty(6)
+    a0, a1, a2 = pose[3] - pose[0], pose[4] - pose[1], pose[5] - pose[2]
+    length = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+    den = max(length, 1e-12)
+    for i in range(3):
+        target[i] = pose[i]
+        target[3 + i] = pose[i] + depth * (pose[3 + i] - pose[i]) / den if length > 1e-9 else pose[3 + i]
+    X0 = np.empty((1, nf))
+    for i in range(nf):
+        X0[0, i] = q0[free[i]]
+    X, R6, CC, it = np.empty((1, nf)), np.empty((1, 6)), np.empty((1, 4)), np.empty(1, dtype=np.int64)
+    refine_hole(X0, target, False, max_iters, damping, stop_tol, margin, guard, weight, free, fixed, lo, hi, wraps,
+                rows, modified, joint_row, joint_param, tool, axis_frame, along_x, revolute, moves, depth, end_frame,
+                end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t, X, R6, CC, it)
+    Q[:] = fixed
+    for i in range(nf):
+        Q[free[i]] = X[0, i]
+    C[:] = CC[0]
+    iters[0] = it[0]
+    reached = target + R6[0]
+    e_s = math.sqrt(((reached[:3] - pose[:3]) ** 2).sum())
+    e_p = math.sqrt(((reached[3:] - pose[3:]) ** 2).sum())
+    u, v = reached[3:] - reached[:3], pose[3:] - pose[:3]
+    cx = u[1] * v[2] - u[2] * v[1]
+    cy = u[2] * v[0] - u[0] * v[2]
+    cz = u[0] * v[1] - u[1] * v[0]
+    E[0], E[1], E[2] = e_s, e_p, 0.5 * (e_s + e_p)
+    E[3] = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), (u * v).sum())
+    hole_error = 0.5 * (math.sqrt((R6[0, :3] ** 2).sum()) + math.sqrt((R6[0, 3:] ** 2).sum()))
+    return hole_error <= tol and C.min() >= margin and C.min() >= 0
+
+
+@njit(cache=True)
+def fast_path(poses, Q0, max_iters, damping, stop_tol, tol, margin, guard, weight, free, fixed, lo, hi, wraps,
+              rows, modified, joint_row, joint_param, tool, axis_frame, along_x, revolute, moves, depth, end_frame,
+              end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t):
+    """:func:`_fast_hole` for every hole, one after another (one hole, or one thread)."""
+    B, n = Q0.shape
+    Q, E, C = np.empty((B, n)), np.empty((B, 4)), np.empty((B, 4))
+    iters, done = np.empty(B, dtype=np.int64), np.empty(B, dtype=np.bool_)
+    for b in range(B):
+        done[b] = _fast_hole(poses[b], Q0[b], max_iters, damping, stop_tol, tol, margin, guard, weight, free, fixed,
+                             lo, hi, wraps, rows, modified, joint_row, joint_param, tool, axis_frame, along_x,
+                             revolute, moves, depth, end_frame, end_along, radius, skip, pairs, d_self, surface,
+                             half_width, wall_height, t, Q[b], E[b], C[b], iters[b:b + 1])
+    return Q, E, C, iters, done
+
+
+@njit(cache=True, parallel=True)
+def fast_path_parallel(poses, Q0, max_iters, damping, stop_tol, tol, margin, guard, weight, free, fixed, lo, hi,
+                       wraps, rows, modified, joint_row, joint_param, tool, axis_frame, along_x, revolute, moves,
+                       depth, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t):
+    """:func:`fast_path` over numba's threads (a batch)."""
+    B, n = Q0.shape
+    Q, E, C = np.empty((B, n)), np.empty((B, 4)), np.empty((B, 4))
+    iters, done = np.empty(B, dtype=np.int64), np.empty(B, dtype=np.bool_)
+    for b in prange(B):
+        done[b] = _fast_hole(poses[b], Q0[b], max_iters, damping, stop_tol, tol, margin, guard, weight, free, fixed,
+                             lo, hi, wraps, rows, modified, joint_row, joint_param, tool, axis_frame, along_x,
+                             revolute, moves, depth, end_frame, end_along, radius, skip, pairs, d_self, surface,
+                             half_width, wall_height, t, Q[b], E[b], C[b], iters[b:b + 1])
+    return Q, E, C, iters, done
+
+
+# ---------------------------------------------------------------------------------------------- the solver
+class CompiledHybridSolver(HybridSolver):
+    """:class:`HybridSolver` with the fast path and every refinement compiled (module docstring).
+
+    ``parallel_from``: batches of at least this many holes use numba's threads (``prange``); smaller
+    ones run on the calling thread, with no pool to wake. ``network_from``: batches of at least this
+    many holes take their start from the torch network (fast matrix products), smaller ones from the
+    compiled MLP (no framework overhead)."""
+
+    name = "hybrid_compiled"
+
+    def __init__(self, boom, safety, init, settings: HybridSettings | None = None, name: str = "hybrid_compiled",
+                 start_box=None, parallel_from: int = 64, network_from: int = 16):
+        super().__init__(boom, safety, init, settings or HybridSettings(), name, start_box)
+        self.chain, self.arrays = ChainArrays.from_boom(boom), SafetyArrays.from_model(safety)
+        self.free = np.array(self.space.free, dtype=np.int64)
+        self.fixed = self.space.fixed.double().numpy().copy()
+        self.lo, self.hi = self.space.lower.double().numpy().copy(), self.space.upper.double().numpy().copy()
+        self.wrap_mask = self.wraps.numpy().copy()
+        self.parallel_from, self.network_from = parallel_from, network_from
+        model = init.model if isinstance(init, NetworkSolver) else None
+        self.mlp = CompiledMLP(model) if isinstance(model, IKNet) else None
+
+    def _kernel_args(self) -> tuple:
+        """Everything the kernels take after the tolerances: settings, joint space, chain, safety."""
+        s = self.s
+        return (s.margin, s.guard, s.clearance_weight, self.free, self.fixed, self.lo, self.hi, self.wrap_mask,
+                *self.chain.args(), *self.arrays.args())
+
+    def refine(self, q0: torch.Tensor, target: torch.Tensor, use_safety: bool,
+               max_iters: int | None = None, owner: torch.Tensor | None = None) -> Candidates:
+        """:meth:`HybridSolver.refine` through :func:`refine_holes`. ``owner`` must list each hole's
+        starts together, in equal numbers (as :meth:`HybridSolver._try` lays them out)."""
+        max_iters = self.s.max_iters if max_iters is None else max_iters
+        N = len(q0)
+        if owner is None:
+            H, K = N, 1
+        else:
+            H = int(owner.max()) + 1 if N else 0
+            K = N // max(H, 1)
+            if H * K != N or not torch.equal(owner, torch.arange(H).repeat_interleave(K)):
+                raise InputError(f"{self.name}: refine needs each hole's starts together, equally many")
+        x0 = np.ascontiguousarray(q0[:, self.space.free].double().numpy().reshape(H, K, -1))
+        tgt = np.ascontiguousarray(target.double().numpy()[::K])
+        X, R6, C, iters = refine_holes(x0, tgt, use_safety, max_iters, self.s.damping, 1e-2 * self.s.tol_mm / 1000,
+                                       *self._kernel_args())
+        x = torch.from_numpy(X.reshape(N, -1))
+        r = torch.from_numpy(R6.reshape(N, 6))
+        hole = 0.5 * (r[:, :3].norm(dim=-1) + r[:, 3:].norm(dim=-1))
+        return Candidates(self.space.full(x), hole, torch.from_numpy(C.reshape(N, 4)),
+                          torch.from_numpy(iters.reshape(N)), r)
+
+    def start_joints(self, targets: HoleTargets, pose: np.ndarray) -> np.ndarray:
+        """The network's (or the home pose's) joints ``(B, n_joints)`` for the fast path."""
+        if self.init is None:
+            home = self.space.full((0.5 * (self.space.lower + self.space.upper))[None])[0].numpy()
+            return np.repeat(home[None], len(pose), axis=0)
+        if self.mlp is not None and len(pose) < self.network_from:
+            return self.mlp(pose)
+        return np.ascontiguousarray(self.init.joints(targets).numpy())
+
+    def solve(self, targets: Targets) -> SolveResult:
+        """The fast path for every hole; the hybrid's cascade (compiled refinements) for the rest."""
+        if not isinstance(targets, HoleTargets):
+            raise InputError(f"{self.name}: solves holes (HoleTargets), got {type(targets).__name__}")
+        if len(targets) == 0:
+            raise InputError(f"{self.name}: no targets to solve")
+        start = time.perf_counter()
+        pose = targets.pose.detach().cpu().double().numpy()
+        q0 = self.start_joints(targets, pose)
+        kernel = fast_path_parallel if len(pose) >= self.parallel_from else fast_path
+        s = self.s
+        Q, E, C, iters, done = kernel(pose, q0, s.max_iters, s.damping, 1e-2 * s.tol_mm / 1000, s.tol_mm / 1000,
+                                      *self._kernel_args())
+        status = np.zeros(len(pose), dtype=np.int64)
+        rest = np.flatnonzero(~done)
+        q, C_t, it = torch.from_numpy(Q), torch.from_numpy(C), torch.from_numpy(iters)
+        errors = {k: torch.from_numpy(np.ascontiguousarray(E[:, i]))
+                  for i, k in enumerate(("position", "preview", "hole", "orientation"))}
+        if len(rest):  # the hybrid's own cascade, with compiled refinements, for the holes left
+            index = torch.from_numpy(rest)
+            sub = HybridSolver.solve(self, targets.subset(index))
+            q[index], C_t[index], it[index] = sub.q, torch.stack([sub.clearances[k] for k in SAFETY_KINDS], -1), \
+                sub.iterations
+            for k in errors:
+                errors[k][index] = sub.errors[k]
+            status[rest] = [STATUSES.index(v) for v in sub.status]
+        wall = time.perf_counter() - start
+        errors = {k: errors[k] for k in ("position", "orientation", "preview", "hole")}
+        return SolveResult(q, errors, it, wall, status=[STATUSES[i] for i in status.tolist()],
+                           clearances={k: C_t[:, i] for i, k in enumerate(SAFETY_KINDS)})
