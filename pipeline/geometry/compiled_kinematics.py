@@ -35,6 +35,8 @@ class ChainArrays:
     tool offset, and per joint where its axis lives (:meth:`Boom._axis_layout`'s rule)."""
 
     rows: np.ndarray  # (R, 4) alpha, a, theta, d
+    cos_alpha: np.ndarray  # (R,) as torch computes them (the chain's constants)
+    sin_alpha: np.ndarray
     modified: bool
     joint_row: np.ndarray  # (n,) int64
     joint_param: np.ndarray  # (n,) int64: index into JOINT_PARAMS
@@ -49,8 +51,11 @@ class ChainArrays:
     def from_boom(cls, boom: Boom) -> ChainArrays:
         modified = boom.convention == "modified"
         frame = [j.row if (j.param == "a") == modified else j.row + 1 for j in boom.joints]
+        rows = np.array(boom.rows, dtype=np.float64).reshape(boom.n_rows, 4)
         return cls(
-            rows=np.array(boom.rows, dtype=np.float64).reshape(boom.n_rows, 4),
+            rows=rows,
+            cos_alpha=torch.cos(torch.from_numpy(rows[:, 0])).numpy().copy(),
+            sin_alpha=torch.sin(torch.from_numpy(rows[:, 0])).numpy().copy(),
             modified=modified,
             joint_row=np.array([j.row for j in boom.joints], dtype=np.int64),
             joint_param=np.array([JOINT_PARAMS.index(j.param) for j in boom.joints], dtype=np.int64),
@@ -68,8 +73,8 @@ class ChainArrays:
 
     def args(self) -> tuple:
         """The arrays in the order every chain kernel takes them."""
-        return (self.rows, self.modified, self.joint_row, self.joint_param, self.tool, self.axis_frame,
-                self.along_x, self.revolute, self.moves, self.depth)
+        return (self.rows, self.cos_alpha, self.sin_alpha, self.modified, self.joint_row, self.joint_param, self.tool,
+                self.axis_frame, self.along_x, self.revolute, self.moves, self.depth)
 
 
 @dataclass(frozen=True)
@@ -117,16 +122,15 @@ assert SAFETY_KINDS == ("self", "wall", "ground", "arch")  # the kernels' cleara
 
 # ---------------------------------------------------------------------------------------------- chain
 @njit(cache=True)
-def frames_into(q, rows, modified, joint_row, joint_param, tool, F):
+def frames_into(q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, F):
     """Every frame of the chain at joints ``q (n,)`` into ``F (R + 2, 4, 4)``: the base, one per
     D-H row, the tool (as :meth:`Boom.frames`)."""
     R = rows.shape[0]
-    L = np.empty((4, 4))
     for i in range(4):
         for j in range(4):
             F[0, i, j] = 1.0 if i == j else 0.0
     for k in range(R):
-        alpha, a, theta, d = rows[k, 0], rows[k, 1], rows[k, 2], rows[k, 3]
+        a, theta, d = rows[k, 1], rows[k, 2], rows[k, 3]
         for j in range(joint_row.shape[0]):
             if joint_row[j] == k:
                 if joint_param[j] == 0:
@@ -135,22 +139,22 @@ def frames_into(q, rows, modified, joint_row, joint_param, tool, F):
                     d += q[j]
                 else:
                     a += q[j]
-        ct, st, ca, sa = math.cos(theta), math.sin(theta), math.cos(alpha), math.sin(alpha)
+        ct, st, ca, sa = math.cos(theta), math.sin(theta), cos_alpha[k], sin_alpha[k]
         if modified:
-            L[0, 0], L[0, 1], L[0, 2], L[0, 3] = ct, -st, 0.0, a
-            L[1, 0], L[1, 1], L[1, 2], L[1, 3] = st * ca, ct * ca, -sa, -d * sa
-            L[2, 0], L[2, 1], L[2, 2], L[2, 3] = st * sa, ct * sa, ca, d * ca
+            l00, l01, l02, l03 = ct, -st, 0.0, a
+            l10, l11, l12, l13 = st * ca, ct * ca, -sa, -d * sa
+            l20, l21, l22, l23 = st * sa, ct * sa, ca, d * ca
         else:
-            L[0, 0], L[0, 1], L[0, 2], L[0, 3] = ct, -st * ca, st * sa, a * ct
-            L[1, 0], L[1, 1], L[1, 2], L[1, 3] = st, ct * ca, -ct * sa, a * st
-            L[2, 0], L[2, 1], L[2, 2], L[2, 3] = 0.0, sa, ca, d
-        L[3, 0], L[3, 1], L[3, 2], L[3, 3] = 0.0, 0.0, 0.0, 1.0
+            l00, l01, l02, l03 = ct, -st * ca, st * sa, a * ct
+            l10, l11, l12, l13 = st, ct * ca, -ct * sa, a * st
+            l20, l21, l22, l23 = 0.0, sa, ca, d
+        P, N = F[k], F[k + 1]  # N = P @ L, L's last row being (0, 0, 0, 1)
         for i in range(4):
-            for j in range(4):
-                s = 0.0
-                for m in range(4):
-                    s += F[k, i, m] * L[m, j]
-                F[k + 1, i, j] = s
+            p0, p1, p2, p3 = P[i, 0], P[i, 1], P[i, 2], P[i, 3]
+            N[i, 0] = p0 * l00 + p1 * l10 + p2 * l20
+            N[i, 1] = p0 * l01 + p1 * l11 + p2 * l21
+            N[i, 2] = p0 * l02 + p1 * l12 + p2 * l22
+            N[i, 3] = p0 * l03 + p1 * l13 + p2 * l23 + p3
     last, out = F[R], F[R + 1]
     for i in range(3):
         for j in range(3):
@@ -286,13 +290,13 @@ def segment_distance(p1, q1, p2, q2):
 
 @njit(cache=True)
 def clearances_into(F, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t,
-                    out, arg, frac_at):
+                    out, arg, frac_at, E):
     """The four clearances (self, wall, ground, arch; m, negative = violated) of frames ``F`` into
     ``out (4,)``, as :meth:`SafetyModel.clearances_from_frames`. Also where each tunnel minimum lies:
     ``arg[k]`` the sample index (body * points + point) and ``frac_at[k]`` its fraction along its
-    body; for self, ``arg`` holds the pair index and ``frac_at`` is unused (gradients need these)."""
+    body; for self, ``arg`` holds the pair index and ``frac_at`` is unused (gradients need these).
+    ``E (2 * bodies, 3)``: scratch, left holding the capsules' end points."""
     nb, P = radius.shape[0], t.shape[0]
-    E = np.empty((2 * nb, 3))
     _ends(F, end_frame, end_along, E)
     for k in range(3):
         out[1 + k] = np.inf
@@ -331,10 +335,9 @@ def clearance_jacobians_into(F, end_frame, end_along, radius, skip, pairs, d_sel
     nb, P, n = radius.shape[0], t.shape[0], axis_frame.shape[0]
     arg = np.empty(4, dtype=np.int64)
     frac = np.empty(4)
-    clearances_into(F, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t,
-                    out, arg, frac)
     E = np.empty((2 * nb, 3))
-    _ends(F, end_frame, end_along, E)
+    clearances_into(F, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t,
+                    out, arg, frac, E)
     J0, J1 = np.empty((3, n)), np.empty((3, n))
     for k in range(1, 4):
         b = arg[k] // P
@@ -372,15 +375,15 @@ def clearance_jacobians_into(F, end_frame, end_along, radius, skip, pairs, d_sel
 
 # ---------------------------------------------------------------------------------------------- batched views
 @njit(cache=True)
-def batch_pose6_jacobian(Q, rows, modified, joint_row, joint_param, tool, axis_frame, along_x, revolute, moves,
-                         depth):
+def batch_pose6_jacobian(Q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, axis_frame, along_x,
+                         revolute, moves, depth):
     """Frames ``(B, R + 2, 4, 4)``, pose6 ``(B, 6)`` and its Jacobian ``(B, 6, n)`` of joints ``Q (B, n)``
     (for tests and callers outside a solver loop)."""
     B, n = Q.shape
     Fs = np.empty((B, rows.shape[0] + 2, 4, 4))
     pose, J = np.empty((B, 6)), np.empty((B, 6, n))
     for b in range(B):
-        frames_into(Q[b], rows, modified, joint_row, joint_param, tool, Fs[b])
+        frames_into(Q[b], rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, Fs[b])
         pose6_jacobian_into(Fs[b], depth, axis_frame, along_x, revolute, pose[b], J[b])
     return Fs, pose, J
 

@@ -39,7 +39,7 @@ from pipeline.geometry.compiled_kinematics import (
     pose6_jacobian_into,
 )
 from pipeline.learning.models import ACTIVATIONS, IKNet
-from pipeline.solvers.base import HoleTargets, NetworkSolver, SolveResult, Targets
+from pipeline.solvers.base import HoleTargets, NetworkSolver, Solver, SolveResult, Targets
 from pipeline.solvers.hybrid import STATUSES, Candidates, HybridSettings, HybridSolver
 
 N_ROWS = 6 + len(SAFETY_KINDS)  # pose rows, then one row per clearance (zero where inactive)
@@ -82,7 +82,7 @@ def _activate(v, act):
     return np.float32(math.tanh(x))
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True)  # reassociated sums vectorise the dot products (float32 either way)
 def _dense(W, b, x, out, act):
     for i in range(W.shape[0]):
         s = np.float32(0.0)
@@ -114,6 +114,9 @@ def mlp_forward(pose, W0, b0, Wh, bh, Wl, bl, act, mean, std, lower, span):
 
 
 # ---------------------------------------------------------------------------------------------- LM on one hole
+# Kernel arguments travel as tuples: ``ch`` the chain (:meth:`ChainArrays.args`), ``sf`` the safety
+# model (:meth:`SafetyArrays.args`), ``sp`` the joint space (free indices, full vector of the fixed
+# values, lower, upper, wraps) and ``st`` the settings (damping, stop_tol, margin, guard, weight).
 @njit(cache=True)
 def _project(x, lo, hi, wraps):
     for i in range(x.shape[0]):
@@ -127,18 +130,29 @@ def _project(x, lo, hi, wraps):
 
 
 @njit(cache=True)
-def _evaluate(x, free, q, target, mode, c_prev, margin, guard, weight, rows, modified, joint_row, joint_param,
-              tool, axis_frame, along_x, revolute, moves, depth, end_frame, end_along, radius, skip, pairs, d_self,
-              surface, half_width, wall_height, t, F, pose, Jfull, Gfull, arg, frac, r, J, c):
+def _frames(x, sp, ch, q, F):
+    free = sp[0]
+    for i in range(free.shape[0]):
+        q[free[i]] = x[i]
+    frames_into(q, ch[0], ch[1], ch[2], ch[3], ch[4], ch[5], ch[6], F)
+
+
+@njit(cache=True)
+def _clearances(F, ch, sf, c, arg, frac, E):
+    clearances_into(F, sf[0], sf[1], sf[2], sf[3], sf[4], sf[5], sf[6], sf[7], sf[8], sf[9], c, arg, frac, E)
+
+
+@njit(cache=True)
+def _evaluate(x, target, mode, c_prev, sp, ch, sf, st, q, F, pose, Jfull, Gfull, cc, arg, frac, E, r, J, c):
     """The hybrid's ``_rows`` for one start: residual ``r (N_ROWS,)`` (pose rows, then the active
     clearance rows ``w (c - margin)``, zero elsewhere), its Jacobian ``J (N_ROWS, n_free)`` and the
     clearances ``c (4,)``. ``mode`` 0: pose only (clearances NaN, not measured); 1: clearances
     re-measured only where ``c_prev``'s smallest is below ``guard``. Returns (hole error, measured)."""
+    free = sp[0]
     nf = free.shape[0]
-    for i in range(nf):
-        q[free[i]] = x[i]
-    frames_into(q, rows, modified, joint_row, joint_param, tool, F)
-    pose6_jacobian_into(F, depth, axis_frame, along_x, revolute, pose, Jfull)
+    margin, guard, weight = st[2], st[3], st[4]
+    _frames(x, sp, ch, q, F)
+    pose6_jacobian_into(F, ch[11], ch[7], ch[8], ch[9], pose, Jfull)
     for i in range(6):
         r[i] = pose[i] - target[i]
         for j in range(nf):
@@ -157,15 +171,13 @@ def _evaluate(x, free, q, target, mode, c_prev, margin, guard, weight, rows, mod
     for k in range(4):
         c[k] = c_prev[k]
     if fresh:
-        clearances_into(F, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t,
-                        c, arg, frac)
+        _clearances(F, ch, sf, c, arg, frac, E)
     any_active = False
     for k in range(4):
         any_active = any_active or c[k] < margin
     if any_active:
-        cc = np.empty(4)
-        clearance_jacobians_into(F, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width,
-                                 wall_height, t, axis_frame, along_x, revolute, moves, cc, Gfull)
+        clearance_jacobians_into(F, sf[0], sf[1], sf[2], sf[3], sf[4], sf[5], sf[6], sf[7], sf[8], sf[9], ch[7],
+                                 ch[8], ch[9], ch[10], cc, Gfull)
         for k in range(4):
             if c[k] < margin:
                 r[6 + k] = weight * (c[k] - margin)
@@ -202,59 +214,109 @@ def _solve_into(A, b, s):
 
 
 @njit(cache=True)
-def refine_hole(X0, target, use_safety, max_iters, damping, stop_tol, margin, guard, weight, free, fixed, lo, hi,
-                wraps, rows, modified, joint_row, joint_param, tool, axis_frame, along_x, revolute, moves, depth,
-                end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t,
-                X, R6, C, iters):
+def _sq(v):
+    s = 0.0
+    for i in range(v.shape[0]):
+        s += v[i] * v[i]
+    return s
+
+
+@njit(cache=True)
+def refine_hole(X0, target, use_safety, max_iters, sp, ch, sf, st, X, R6, C, iters):
     """The hybrid's :meth:`refine` for the ``K`` starts ``X0 (K, n_free)`` of one hole: each start
     runs LM until exact (and, with ``use_safety``, clear); once one start is done, the hole's other
     starts stop where they are. Writes the joints ``X``, pose residuals ``R6``, clearances ``C``
-    (always measured at ``X``) and iteration counts ``iters``."""
-    K, nf, n = X0.shape[0], free.shape[0], fixed.shape[0]
+    (always measured at ``X``) and iteration counts ``iters``. One workspace allocation per call."""
+    free, fixed, lo, hi, wraps = sp
+    damping, stop_tol = st[0], st[1]
+    K, nf, n, nF, nE = X0.shape[0], free.shape[0], fixed.shape[0], ch[0].shape[0] + 2, sf[0].shape[0]
     mode = 1 if use_safety else 0
-    q = fixed.copy()
-    F = np.empty((rows.shape[0] + 2, 4, 4))
-    pose, Jfull, Gfull = np.empty(6), np.empty((6, n)), np.empty((4, n))
-    arg, frac = np.empty(4, dtype=np.int64), np.empty(4)
-    minus_inf = np.full(4, -np.inf)
-    r, J, c = np.empty((K, N_ROWS)), np.empty((K, N_ROWS, nf)), np.empty((K, 4))
-    hole, fresh, cost, lam = np.empty(K), np.zeros(K, dtype=np.bool_), np.empty(K), np.full(K, damping)
-    rn, Jn, cn = np.empty(N_ROWS), np.empty((N_ROWS, nf)), np.empty(4)
-    xn, A, g, step = np.empty(nf), np.empty((nf, nf)), np.empty(nf), np.empty(nf)
+    sizes = (n, nF * 16, 6, 6 * n, 4 * n, 4, 4, 3 * nE, K * N_ROWS, K * N_ROWS * nf, K * 4, K, K, K,
+             N_ROWS, N_ROWS * nf, 4, nf, nf * nf, nf, nf, 4)
+    total = 0
+    for v in sizes:
+        total += v
+    w = np.empty(total)
+    o = 0
+    q = w[o:o + n]
+    o += n
+    F = w[o:o + nF * 16].reshape((nF, 4, 4))
+    o += nF * 16
+    pose = w[o:o + 6]
+    o += 6
+    Jfull = w[o:o + 6 * n].reshape((6, n))
+    o += 6 * n
+    Gfull = w[o:o + 4 * n].reshape((4, n))
+    o += 4 * n
+    cc = w[o:o + 4]
+    o += 4
+    frac = w[o:o + 4]
+    o += 4
+    E = w[o:o + 3 * nE].reshape((nE, 3))
+    o += 3 * nE
+    r = w[o:o + K * N_ROWS].reshape((K, N_ROWS))
+    o += K * N_ROWS
+    J = w[o:o + K * N_ROWS * nf].reshape((K, N_ROWS, nf))
+    o += K * N_ROWS * nf
+    c = w[o:o + K * 4].reshape((K, 4))
+    o += K * 4
+    hole = w[o:o + K]
+    o += K
+    cost = w[o:o + K]
+    o += K
+    lam = w[o:o + K]
+    o += K
+    rn = w[o:o + N_ROWS]
+    o += N_ROWS
+    Jn = w[o:o + N_ROWS * nf].reshape((N_ROWS, nf))
+    o += N_ROWS * nf
+    cn = w[o:o + 4]
+    o += 4
+    xn = w[o:o + nf]
+    o += nf
+    A = w[o:o + nf * nf].reshape((nf, nf))
+    o += nf * nf
+    g = w[o:o + nf]
+    o += nf
+    step = w[o:o + nf]
+    o += nf
+    minus_inf = w[o:o + 4]
+    minus_inf[:] = -np.inf
+    q[:] = fixed
+    arg = np.empty(4, dtype=np.int64)
+    fresh = np.zeros(K, dtype=np.bool_)
     for k in range(K):
         X[k] = X0[k]
         _project(X[k], lo, hi, wraps)
-        hole[k], fresh[k] = _evaluate(X[k], free, q, target, mode, minus_inf, margin, guard, weight, rows, modified,
-                                      joint_row, joint_param, tool, axis_frame, along_x, revolute, moves, depth,
-                                      end_frame, end_along, radius, skip, pairs, d_self, surface, half_width,
-                                      wall_height, t, F, pose, Jfull, Gfull, arg, frac, r[k], J[k], c[k])
-        cost[k] = (r[k] * r[k]).sum()
+        hole[k], fresh[k] = _evaluate(X[k], target, mode, minus_inf, sp, ch, sf, st, q, F, pose, Jfull, Gfull, cc,
+                                      arg, frac, E, r[k], J[k], c[k])
+        cost[k] = _sq(r[k])
+        lam[k] = damping
         iters[k] = 0
     for it in range(max_iters + 1):
         any_done = False
         for k in range(K):
             done = hole[k] <= stop_tol and (not use_safety or c[k].min() >= 0)
             if use_safety and done and not fresh[k]:  # exact on clearances measured earlier: measure them here
-                hole[k], fresh[k] = _evaluate(X[k], free, q, target, mode, minus_inf, margin, guard, weight, rows,
-                                              modified, joint_row, joint_param, tool, axis_frame, along_x, revolute,
-                                              moves, depth, end_frame, end_along, radius, skip, pairs, d_self,
-                                              surface, half_width, wall_height, t, F, pose, Jfull, Gfull, arg, frac,
-                                              r[k], J[k], c[k])
-                cost[k] = (r[k] * r[k]).sum()
+                hole[k], fresh[k] = _evaluate(X[k], target, mode, minus_inf, sp, ch, sf, st, q, F, pose, Jfull,
+                                              Gfull, cc, arg, frac, E, r[k], J[k], c[k])
+                cost[k] = _sq(r[k])
                 done = hole[k] <= stop_tol and c[k].min() >= 0
             any_done = any_done or done
         if any_done or it == max_iters:
             break
         for k in range(K):
+            Jk, rk = J[k], r[k]
             for i in range(nf):
-                for j in range(nf):
+                for j in range(i, nf):
                     s = 0.0
                     for m in range(N_ROWS):
-                        s += J[k, m, i] * J[k, m, j]
+                        s += Jk[m, i] * Jk[m, j]
                     A[i, j] = s
+                    A[j, i] = s
                 s = 0.0
                 for m in range(N_ROWS):
-                    s += J[k, m, i] * r[k, m]
+                    s += Jk[m, i] * rk[m]
                 g[i] = -s
             for i in range(nf):  # Marquardt scaling, as the torch hybrid
                 A[i, i] += lam[k] * (A[i, i] + 1e-9)
@@ -262,11 +324,9 @@ def refine_hole(X0, target, use_safety, max_iters, damping, stop_tol, margin, gu
             for i in range(nf):
                 xn[i] = X[k, i] + step[i]
             _project(xn, lo, hi, wraps)
-            hn, fn = _evaluate(xn, free, q, target, mode, c[k], margin, guard, weight, rows, modified, joint_row,
-                               joint_param, tool, axis_frame, along_x, revolute, moves, depth, end_frame, end_along,
-                               radius, skip, pairs, d_self, surface, half_width, wall_height, t, F, pose, Jfull,
-                               Gfull, arg, frac, rn, Jn, cn)
-            cost_new = (rn * rn).sum()
+            hn, fn = _evaluate(xn, target, mode, c[k], sp, ch, sf, st, q, F, pose, Jfull, Gfull, cc, arg, frac, E,
+                               rn, Jn, cn)
+            cost_new = _sq(rn)
             if cost_new < cost[k]:
                 X[k] = xn
                 r[k] = rn
@@ -282,103 +342,100 @@ def refine_hole(X0, target, use_safety, max_iters, damping, stop_tol, margin, gu
             R6[k, i] = r[k, i]
         C[k] = c[k]
         if not fresh[k]:  # the answer's own clearances, wherever the loop reused older ones
-            for i in range(nf):
-                q[free[i]] = X[k, i]
-            frames_into(q, rows, modified, joint_row, joint_param, tool, F)
-            clearances_into(F, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height,
-                            t, C[k], arg, frac)
+            _frames(X[k], sp, ch, q, F)
+            _clearances(F, ch, sf, C[k], arg, frac, E)
 
 
 @njit(cache=True, parallel=True)
-def refine_holes(X0, targets, use_safety, max_iters, damping, stop_tol, margin, guard, weight, free, fixed, lo, hi,
-                 wraps, rows, modified, joint_row, joint_param, tool, axis_frame, along_x, revolute, moves, depth,
-                 end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t):
+def refine_holes(X0, targets, use_safety, max_iters, sp, ch, sf, st):
     """:func:`refine_hole` for ``H`` holes of ``K`` starts each, ``X0 (H, K, n_free)``, in parallel."""
     H, K, nf = X0.shape
     X, R6, C = np.empty((H, K, nf)), np.empty((H, K, 6)), np.empty((H, K, 4))
     iters = np.empty((H, K), dtype=np.int64)
     for h in prange(H):
-        refine_hole(X0[h], targets[h], use_safety, max_iters, damping, stop_tol, margin, guard, weight, free, fixed,
-                    lo, hi, wraps, rows, modified, joint_row, joint_param, tool, axis_frame, along_x, revolute,
-                    moves, depth, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width,
-                    wall_height, t, X[h], R6[h], C[h], iters[h])
+        refine_hole(X0[h], targets[h], use_safety, max_iters, sp, ch, sf, st, X[h], R6[h], C[h], iters[h])
     return X, R6, C, iters
 
 
 # ---------------------------------------------------------------------------------------------- the fast path
 @njit(cache=True)
-def _fast_hole(pose, q0, max_iters, damping, stop_tol, tol, margin, guard, weight, free, fixed, lo, hi, wraps,
-               rows, modified, joint_row, joint_param, tool, axis_frame, along_x, revolute, moves, depth, end_frame,
-               end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t, Q, E, C, iters):
+def _fast_hole(pose, q0, max_iters, tol, sp, ch, sf, st, Q, E, C, iters):
     """One hole's fast path: reachable target, pose-only LM from ``q0``, errors ``E`` (start,
     preview, hole, direction; against the pose as given) and clearances ``C``. Returns whether the
     hole is done: exact, and clear by at least ``margin``."""
+    free, fixed = sp[0], sp[1]
+    depth, margin = ch[11], st[2]
     nf = free.shape[0]
     target = np.empty(6)
     a0, a1, a2 = pose[3] - pose[0], pose[4] - pose[1], pose[5] - pose[2]
     length = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
     den = max(length, 1e-12)
-    for i in range(3):
+    for i in range(3):  # HybridSolver.consistent: the preview point at exactly the preview depth
         target[i] = pose[i]
         target[3 + i] = pose[i] + depth * (pose[3 + i] - pose[i]) / den if length > 1e-9 else pose[3 + i]
     X0 = np.empty((1, nf))
     for i in range(nf):
         X0[0, i] = q0[free[i]]
-    X, R6, CC, it = np.empty((1, nf)), np.empty((1, 6)), np.empty((1, 4)), np.empty(1, dtype=np.int64)
-    refine_hole(X0, target, False, max_iters, damping, stop_tol, margin, guard, weight, free, fixed, lo, hi, wraps,
-                rows, modified, joint_row, joint_param, tool, axis_frame, along_x, revolute, moves, depth, end_frame,
-                end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t, X, R6, CC, it)
+    X, R6 = np.empty((1, nf)), np.empty((1, 6))
+    refine_hole(X0, target, False, max_iters, sp, ch, sf, st, X, R6, C.reshape((1, 4)), iters)
     Q[:] = fixed
     for i in range(nf):
         Q[free[i]] = X[0, i]
-    C[:] = CC[0]
-    iters[0] = it[0]
-    reached = target + R6[0]
-    e_s = math.sqrt(((reached[:3] - pose[:3]) ** 2).sum())
-    e_p = math.sqrt(((reached[3:] - pose[3:]) ** 2).sum())
-    u, v = reached[3:] - reached[:3], pose[3:] - pose[:3]
-    cx = u[1] * v[2] - u[2] * v[1]
-    cy = u[2] * v[0] - u[0] * v[2]
-    cz = u[0] * v[1] - u[1] * v[0]
+    e_s, e_p, uv = 0.0, 0.0, 0.0
+    u, v = np.empty(3), np.empty(3)
+    for i in range(3):
+        e_s += (target[i] + R6[0, i] - pose[i]) ** 2
+        e_p += (target[3 + i] + R6[0, 3 + i] - pose[3 + i]) ** 2
+        u[i] = (target[3 + i] + R6[0, 3 + i]) - (target[i] + R6[0, i])
+        v[i] = pose[3 + i] - pose[i]
+        uv += u[i] * v[i]
+    cx, cy, cz = u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]
+    e_s, e_p = math.sqrt(e_s), math.sqrt(e_p)
     E[0], E[1], E[2] = e_s, e_p, 0.5 * (e_s + e_p)
-    E[3] = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), (u * v).sum())
-    hole_error = 0.5 * (math.sqrt((R6[0, :3] ** 2).sum()) + math.sqrt((R6[0, 3:] ** 2).sum()))
-    return hole_error <= tol and C.min() >= margin and C.min() >= 0
+    E[3] = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), uv)
+    hole_error = 0.5 * (math.sqrt(_sq(R6[0, :3])) + math.sqrt(_sq(R6[0, 3:])))
+    worst = min(min(C[0], C[1]), min(C[2], C[3]))
+    return hole_error <= tol and worst >= margin and worst >= 0
 
 
 @njit(cache=True)
-def fast_path(poses, Q0, max_iters, damping, stop_tol, tol, margin, guard, weight, free, fixed, lo, hi, wraps,
-              rows, modified, joint_row, joint_param, tool, axis_frame, along_x, revolute, moves, depth, end_frame,
-              end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t):
+def fast_path(poses, Q0, max_iters, tol, sp, ch, sf, st):
     """:func:`_fast_hole` for every hole, one after another (one hole, or one thread)."""
     B, n = Q0.shape
     Q, E, C = np.empty((B, n)), np.empty((B, 4)), np.empty((B, 4))
     iters, done = np.empty(B, dtype=np.int64), np.empty(B, dtype=np.bool_)
     for b in range(B):
-        done[b] = _fast_hole(poses[b], Q0[b], max_iters, damping, stop_tol, tol, margin, guard, weight, free, fixed,
-                             lo, hi, wraps, rows, modified, joint_row, joint_param, tool, axis_frame, along_x,
-                             revolute, moves, depth, end_frame, end_along, radius, skip, pairs, d_self, surface,
-                             half_width, wall_height, t, Q[b], E[b], C[b], iters[b:b + 1])
+        done[b] = _fast_hole(poses[b], Q0[b], max_iters, tol, sp, ch, sf, st, Q[b], E[b], C[b], iters[b:b + 1])
     return Q, E, C, iters, done
 
 
 @njit(cache=True, parallel=True)
-def fast_path_parallel(poses, Q0, max_iters, damping, stop_tol, tol, margin, guard, weight, free, fixed, lo, hi,
-                       wraps, rows, modified, joint_row, joint_param, tool, axis_frame, along_x, revolute, moves,
-                       depth, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t):
+def fast_path_parallel(poses, Q0, max_iters, tol, sp, ch, sf, st):
     """:func:`fast_path` over numba's threads (a batch)."""
     B, n = Q0.shape
     Q, E, C = np.empty((B, n)), np.empty((B, 4)), np.empty((B, 4))
     iters, done = np.empty(B, dtype=np.int64), np.empty(B, dtype=np.bool_)
     for b in prange(B):
-        done[b] = _fast_hole(poses[b], Q0[b], max_iters, damping, stop_tol, tol, margin, guard, weight, free, fixed,
-                             lo, hi, wraps, rows, modified, joint_row, joint_param, tool, axis_frame, along_x,
-                             revolute, moves, depth, end_frame, end_along, radius, skip, pairs, d_self, surface,
-                             half_width, wall_height, t, Q[b], E[b], C[b], iters[b:b + 1])
+        done[b] = _fast_hole(poses[b], Q0[b], max_iters, tol, sp, ch, sf, st, Q[b], E[b], C[b], iters[b:b + 1])
     return Q, E, C, iters, done
 
 
 # ---------------------------------------------------------------------------------------------- the solver
+class _Given(Solver):
+    """The starts already computed, as the cascade's ``init`` (row ``i`` for hole ``i``)."""
+
+    name = "given"
+
+    def __init__(self, boom, q: torch.Tensor):
+        super().__init__(boom)
+        self.q = q
+
+    def _solve(self, targets):
+        if len(targets) != len(self.q):
+            raise InputError(f"{self.name}: {len(self.q)} starts for {len(targets)} holes")
+        return self.q, torch.ones(len(targets), dtype=torch.long)
+
+
 class CompiledHybridSolver(HybridSolver):
     """:class:`HybridSolver` with the fast path and every refinement compiled (module docstring).
 
@@ -400,12 +457,28 @@ class CompiledHybridSolver(HybridSolver):
         self.parallel_from, self.network_from = parallel_from, network_from
         model = init.model if isinstance(init, NetworkSolver) else None
         self.mlp = CompiledMLP(model) if isinstance(model, IKNet) else None
+        self.warm_up()
+
+    def warm_up(self) -> None:
+        """Load (or, the first time on a machine, compile: about a minute) every kernel now, so that
+        no solve pays for it: two holes through each kernel and mode, at the home pose."""
+        home = self.space.full((0.5 * (self.space.lower + self.space.upper))[None]).double()
+        pose = self.boom.pose6(home).expand(2, -1).contiguous()
+        q0 = home.expand(2, -1).numpy().copy()
+        s = self.s
+        for kernel in (fast_path, fast_path_parallel):
+            kernel(pose.numpy().copy(), q0, 1, s.tol_mm / 1000, *self._kernel_args())
+        for use_safety in (False, True):
+            self.refine(home.expand(2, -1), pose, use_safety, max_iters=1, owner=torch.tensor([0, 0]))
+        if self.mlp is not None:
+            self.mlp(pose.numpy())
 
     def _kernel_args(self) -> tuple:
-        """Everything the kernels take after the tolerances: settings, joint space, chain, safety."""
+        """The kernels' tuples: joint space, chain, safety model, settings (see the kernels' comment)."""
         s = self.s
-        return (s.margin, s.guard, s.clearance_weight, self.free, self.fixed, self.lo, self.hi, self.wrap_mask,
-                *self.chain.args(), *self.arrays.args())
+        return ((self.free, self.fixed, self.lo, self.hi, self.wrap_mask), self.chain.args(), self.arrays.args(),
+                (float(s.damping), 1e-2 * s.tol_mm / 1000, float(s.margin), float(s.guard),
+                 float(s.clearance_weight)))
 
     def refine(self, q0: torch.Tensor, target: torch.Tensor, use_safety: bool,
                max_iters: int | None = None, owner: torch.Tensor | None = None) -> Candidates:
@@ -422,8 +495,7 @@ class CompiledHybridSolver(HybridSolver):
                 raise InputError(f"{self.name}: refine needs each hole's starts together, equally many")
         x0 = np.ascontiguousarray(q0[:, self.space.free].double().numpy().reshape(H, K, -1))
         tgt = np.ascontiguousarray(target.double().numpy()[::K])
-        X, R6, C, iters = refine_holes(x0, tgt, use_safety, max_iters, self.s.damping, 1e-2 * self.s.tol_mm / 1000,
-                                       *self._kernel_args())
+        X, R6, C, iters = refine_holes(x0, tgt, use_safety, max_iters, *self._kernel_args())
         x = torch.from_numpy(X.reshape(N, -1))
         r = torch.from_numpy(R6.reshape(N, 6))
         hole = 0.5 * (r[:, :3].norm(dim=-1) + r[:, 3:].norm(dim=-1))
@@ -439,6 +511,19 @@ class CompiledHybridSolver(HybridSolver):
             return self.mlp(pose)
         return np.ascontiguousarray(self.init.joints(targets).numpy())
 
+    def _cascade(self, targets: HoleTargets, q0: torch.Tensor) -> SolveResult:
+        """:meth:`HybridSolver.solve` from the starts the fast path had (no second network pass), its
+        torch bookkeeping on one thread: small tensors gain nothing from more, and idle torch threads
+        spinning beside numba's would take the cores from the kernels."""
+        init, threads = self.init, torch.get_num_threads()
+        self.init = _Given(self.boom, q0)
+        torch.set_num_threads(1)
+        try:
+            return HybridSolver.solve(self, targets)
+        finally:
+            self.init = init
+            torch.set_num_threads(threads)
+
     def solve(self, targets: Targets) -> SolveResult:
         """The fast path for every hole; the hybrid's cascade (compiled refinements) for the rest."""
         if not isinstance(targets, HoleTargets):
@@ -450,8 +535,7 @@ class CompiledHybridSolver(HybridSolver):
         q0 = self.start_joints(targets, pose)
         kernel = fast_path_parallel if len(pose) >= self.parallel_from else fast_path
         s = self.s
-        Q, E, C, iters, done = kernel(pose, q0, s.max_iters, s.damping, 1e-2 * s.tol_mm / 1000, s.tol_mm / 1000,
-                                      *self._kernel_args())
+        Q, E, C, iters, done = kernel(pose, q0, s.max_iters, s.tol_mm / 1000, *self._kernel_args())
         status = np.zeros(len(pose), dtype=np.int64)
         rest = np.flatnonzero(~done)
         q, C_t, it = torch.from_numpy(Q), torch.from_numpy(C), torch.from_numpy(iters)
@@ -459,7 +543,7 @@ class CompiledHybridSolver(HybridSolver):
                   for i, k in enumerate(("position", "preview", "hole", "orientation"))}
         if len(rest):  # the hybrid's own cascade, with compiled refinements, for the holes left
             index = torch.from_numpy(rest)
-            sub = HybridSolver.solve(self, targets.subset(index))
+            sub = self._cascade(targets.subset(index), torch.from_numpy(q0[rest]))
             q[index], C_t[index], it[index] = sub.q, torch.stack([sub.clearances[k] for k in SAFETY_KINDS], -1), \
                 sub.iterations
             for k in errors:
