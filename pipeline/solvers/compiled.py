@@ -22,8 +22,10 @@ equal to the torch hybrid's. Torch stays the solver for training and for GPU bat
 from __future__ import annotations
 
 import math
+import os
 import time
 
+import numba
 import numpy as np
 import torch
 from numba import njit, prange
@@ -41,6 +43,11 @@ from pipeline.geometry.compiled_kinematics import (
 from pipeline.learning.models import ACTIVATIONS, IKNet
 from pipeline.solvers.base import HoleTargets, NetworkSolver, Solver, SolveResult, Targets
 from pipeline.solvers.hybrid import STATUSES, Candidates, HybridSettings, HybridSolver
+
+if "NUMBA_THREADING_LAYER" not in os.environ:
+    # numba's own pool, whose idle threads sleep: its OpenMP layer would be a second OpenMP runtime beside
+    # torch's, and the two pools' spinning threads take turns at 2 cores (slower batches, when measured)
+    numba.config.THREADING_LAYER = "workqueue"
 
 N_ROWS = 6 + len(SAFETY_KINDS)  # pose rows, then one row per clearance (zero where inactive)
 ACTIVATION_CODES = {name: i for i, name in enumerate(sorted(ACTIVATIONS))}  # gelu, relu, silu, tanh
