@@ -20,7 +20,8 @@ from pipeline.solvers.rbf import RBFSolver
 
 __all__ = ["FrameTargets", "HoleTargets", "Solver", "SolveResult", "build_solver"]
 
-SOLVER_KINDS = ("network", "nm", "rbf", "pso", "ga", "hybrid")
+SOLVER_KINDS = ("network", "nm", "rbf", "pso", "ga", "hybrid", "hybrid_compiled", "rtb_ik_lm", "pinocchio_clik")
+PEER_KINDS = ("rtb_ik_lm", "pinocchio_clik")  # the optional `peers` extra (pipeline/solvers/peers.py)
 
 
 def _init_solver(name: str, init, boom: Boom, models_dir: Path, specs: Mapping | None, safety) -> Solver | None:
@@ -48,13 +49,22 @@ def build_solver(name: str, spec: Mapping, boom: Boom, models_dir: Path, specs: 
     if kind not in SOLVER_KINDS:
         raise ConfigError(f"benchmark.solvers.{name}.kind = {kind!r}: expected one of {list(SOLVER_KINDS)}")
     try:
-        if kind == "hybrid":
+        if kind in ("hybrid", "hybrid_compiled"):
             if safety is None:
                 raise ConfigError(f"benchmark.solvers.{name}: the hybrid solver needs the safety model")
             unknown_keys(spec, HYBRID_ENTRY, f"benchmark.solvers.{name}",
                          "; the hybrid's settings are the solver group (solver.*, conf/solver/hybrid.yaml)")
             init = _init_solver(name, spec.pop("init", None), boom, models_dir, specs, safety)
-            return HybridSolver(boom, safety, init, hybrid or parse(HybridSettings, {}, "solver"), name, start_box)
+            settings = hybrid or parse(HybridSettings, {}, "solver")
+            if kind == "hybrid_compiled":  # the same solver, its fast path and refinements compiled (numba)
+                from pipeline.solvers.compiled import CompiledHybridSolver
+
+                return CompiledHybridSolver(boom, safety, init, settings, name, start_box)
+            return HybridSolver(boom, safety, init, settings, name, start_box)
+        if kind in PEER_KINDS:  # raises PeersUnavailable (an ImportError) with the install line
+            from pipeline.solvers.peers import build_peer
+
+            return build_peer(kind, boom, **spec)
         if kind == "network":
             from pipeline.learning.network_source import load_network
 
