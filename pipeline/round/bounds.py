@@ -1,0 +1,33 @@
+"""The spec's lower bound of a round's makespan (section 7).
+
+``max(longest single hole, (sum of drilling + sum over holes of the shortest move into the hole) / B)``
+
+- a single hole: the fastest boom that can drill it leaves park, drills it and returns, so no
+  round is shorter than the longest of these;
+- every hole is entered once, by one of the booms that can drill it, from park or from another hole
+  that boom can drill; B booms share the drilling and those entries, so one of them works at least
+  the average.
+
+Holes no boom can drill are not part of the round and are left out.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.round.instance import Instance
+
+
+def lower_bound(inst: Instance) -> float:
+    H = inst.n_holes
+    keep = inst.drillable
+    if not keep.any():
+        return 0.0
+    drill = inst.drill_s
+    ok = np.concatenate([inst.reach, np.ones((inst.n_booms, 1), bool)], axis=1)  # (B, H + 1), park allowed
+    mv = np.where(ok[:, :, None] & ok[:, None, :], inst.move_s, np.inf)  # (B, from, to)
+    mv[:, np.arange(H), np.arange(H)] = np.inf  # "from any other hole"
+    into = mv[:, :, :H].min(axis=1).min(axis=0)  # shortest entry of each hole, any boom that can drill it
+    single = np.where(inst.reach, inst.move_s[:, H, :H] + drill + inst.move_s[:, :H, H], np.inf).min(axis=0)
+    share = (drill[keep].sum() + into[keep].sum()) / inst.n_booms
+    return float(max(single[keep].max(), share))

@@ -1,0 +1,181 @@
+"""Boom-boom conflicts of timed segments, from the real kinematics (rig model, boom_pair, timing).
+
+A segment of boom b is ``(t0, t1, u, v)``: standing at node u (``u == v``: a hole's joints, or its
+park, index H) or moving from u to v by the synchronised straight-line move of
+:func:`pipeline.motion.timing.profile` (duration ``move_s[b, u, v]``, starting at t0). The timeline
+asks :meth:`KinematicOracle.check` for batches of pairs of segments of two booms over the interval
+where both run; the oracle answers, per pair, the first instant where d_boom breaks (inf if none) and
+the smallest clearance it sampled.
+
+Standing x standing needs one number per (boom a at node i, boom b at node j): :meth:`standing` is
+the whole ``(H + 1, H + 1)`` matrix per boom pair, computed once (one batched call) and cached; most
+pairs of a timeline are of this kind.
+
+Pairs with a move are checked by conservative advancement at instants common to both booms. A point
+of boom b moves at most at ``|ds/dt| * K_b <= peak * K_b`` with ``K_b = sum_i |step_i| * lever_i``
+(``lever_i``: :func:`lever_bounds`, a bound on the distance of any capsule end from joint i's axis;
+1 for a prismatic joint). So if the clearance is c at instant t, it stays at least ``floor`` until
+``t + (c - floor) / (v_a + v_b)``: the next instant checked. ``floor = 2 traj_tol_m`` keeps the
+trajectory file clear too (its linear interpolation keeps each boom within traj_tol_m of the plan).
+A pair conflicts at the first checked instant whose clearance is below ``margin = sample_m / 2 +
+floor``; above it every step is at least ``sample_m / 2 / (v_a + v_b)`` long (no point travels less
+than sample_m / 4 between two checks), so the check ends. Far apart booms need few instants, close
+ones many. Standing pairs are exact (no motion, rows exact): they conflict below 0. ``least``
+reports the smallest clearance at the instants checked (steps shrink near the minimum).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from pipeline.geometry.kinematics import Boom
+from pipeline.motion.timing import JointLimits, profile
+
+D = torch.float64
+
+
+def lever_bounds(boom: Boom) -> np.ndarray:
+    """Per joint, a bound (m) on the distance from its axis to any capsule end, over all configurations
+    within the joint limits; 1 for prismatic joints (points move as fast as the joint).
+
+    Modified D-H: frame k's origin is frame k-1's plus ``a_k x_{k-1} + d_k z_k``, so the distance of
+    frame f's origin from frame r's is at most ``sum_{k=r+1..f} (|a_k| + max |d_k|)`` (triangle
+    inequality; max |d_k| over the joint's range where a joint drives d_k); a capsule end adds its
+    tool offset and ``|along_z|``. Joint i on row r turns about z of frame r+1 through its origin."""
+    rows = boom.rows
+    n_rows = len(rows)
+    extent = []
+    for k, (_, a, _, d) in enumerate(rows):
+        ext_a, ext_d = abs(a), abs(d)
+        for j in boom.joints:
+            if j.row == k and j.param == "d":
+                ext_d = max(abs(d + j.lower), abs(d + j.upper))
+            if j.row == k and j.param == "a":
+                ext_a = max(abs(a + j.lower), abs(a + j.upper))
+        extent.append(ext_a + ext_d)
+    tool = math.hypot(*boom.tool)
+    ends = [p for body in boom.bodies.values() for p in (body.start, body.end)]
+
+    def reach_from(frame_r: int) -> float:
+        best = 0.0
+        for p in ends:
+            f = min(p.frame, n_rows)  # the tool frame sits on frame n_rows plus the tool offset
+            dist = sum(extent[k] for k in range(frame_r, f)) + (tool if p.frame > n_rows else 0.0) + abs(p.along_z)
+            best = max(best, dist)
+        return best
+
+    return np.array([reach_from(j.row + 1) if j.revolute else 1.0 for j in boom.joints])
+
+
+class KinematicOracle:
+    """Conflicts of two booms' segments, measured with the rig's boom-boom clearance.
+
+    ``rig``: a :class:`pipeline.geometry.rig.Rig` (its ``boom_clearance``); ``joints``: per boom a
+    ``(H + 1, n)`` tensor of its joint solutions, row H its park (rows of holes it cannot drill are
+    never read; NaN is fine); ``limits``: per boom its :class:`JointLimits`."""
+
+    def __init__(self, rig, joints: Sequence[torch.Tensor], limits: Sequence[JointLimits], sample_m: float = 0.01,
+                 traj_tol_m: float = 0.001):
+        self.rig, self.limits = rig, list(limits)
+        self.joints = [torch.as_tensor(q, dtype=D) for q in joints]
+        self.levers = [torch.tensor(lever_bounds(m.boom), dtype=D) for m in rig.booms]
+        self.sample_m, self.traj_tol_m = float(sample_m), float(traj_tol_m)
+        self.floor = 2 * self.traj_tol_m  # kept between samples: the trajectory file stays clear
+        self.margin = self.sample_m / 2 + self.floor
+        self._standing: dict[tuple[int, int], np.ndarray] = {}
+        self.evaluations = 0  # boom-boom clearance evaluations (pairs of configurations), for reports
+
+    def standing(self, a: int, b: int) -> np.ndarray:
+        """``(H + 1, H + 1)`` clearance (m, less d_boom) of boom a at node i and boom b at node j."""
+        if (a, b) not in self._standing:
+            if (b, a) in self._standing:
+                return self._standing[(b, a)].T
+            qa, qb = self.joints[a], self.joints[b]
+            with torch.inference_mode():
+                c = self.rig.boom_clearance(a, qa[:, None, :], b, qb[None, :, :])
+            self.evaluations += c.numel()
+            self._standing[(a, b)] = c.numpy()
+        return self._standing[(a, b)]
+
+    def speed_bound(self, b: int, u: np.ndarray, v: np.ndarray):
+        """Per move u -> v of boom b: its profile and a bound (m/s) on the speed of any point of it."""
+        q = self.joints[b]
+        prof = profile(q[torch.as_tensor(u)], q[torch.as_tensor(v)], self.limits[b])
+        K = (prof.step.abs() * self.levers[b]).sum(-1)
+        return prof, prof.peak * K * (prof.duration > 0)
+
+    def check(self, a: int, seg_a: dict, b: int, seg_b: dict, lo: np.ndarray, hi: np.ndarray):
+        """Pairs k of segments (``t0, u, v`` arrays per boom) over ``[lo_k, hi_k]``: the first instant
+        of conflict (inf if none) and the smallest sampled clearance (m, less d_boom)."""
+        n = len(lo)
+        first, least = np.full(n, np.inf), np.full(n, np.inf)
+        if n == 0:
+            return first, least
+        still = (seg_a["u"] == seg_a["v"]) & (seg_b["u"] == seg_b["v"])
+        if still.any():
+            c = self.standing(a, b)[seg_a["u"][still], seg_b["u"][still]]
+            least[still] = c
+            first[still] = np.where(c < 0, lo[still], np.inf)
+        moving = np.flatnonzero(~still)
+        if len(moving) == 0:
+            return first, least
+        pa, va = self.speed_bound(a, seg_a["u"][moving], seg_a["v"][moving])
+        pb, vb = self.speed_bound(b, seg_b["u"][moving], seg_b["v"][moving])
+        v = (va + vb).clamp_min(1e-9)
+        t = torch.as_tensor(lo[moving], dtype=D).clone()
+        hi_m = torch.as_tensor(hi[moving], dtype=D)
+        ta0 = torch.as_tensor(seg_a["t0"][moving], dtype=D)
+        tb0 = torch.as_tensor(seg_b["t0"][moving], dtype=D)
+        f = torch.full((len(moving),), math.inf, dtype=D)
+        m = torch.full((len(moving),), math.inf, dtype=D)
+        active = torch.arange(len(moving))
+        with torch.inference_mode():
+            while len(active):  # conservative advancement, all pairs at once
+                ta = t[active]
+                c = self.rig.boom_clearance(a, _positions(pa, active, ta - ta0[active]),
+                                            b, _positions(pb, active, ta - tb0[active]))
+                self.evaluations += len(active)
+                m[active] = torch.minimum(m[active], c)
+                bad = c < self.margin
+                f[active[bad]] = ta[bad]
+                t[active] = ta + (c - self.floor) / v[active]  # clear up to there: clearance >= floor
+                active = active[~bad & (t[active] < hi_m[active])]
+        first[moving], least[moving] = f.numpy(), m.numpy()
+        return first, least
+
+
+def _positions(prof, pair: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    """Joints at time ``t`` (from each move's start) of the moves ``pair`` of a batched profile."""
+    T, tau, A, V = prof.duration[pair], prof.tau[pair], prof.accel[pair], prof.peak[pair]
+    t = torch.minimum(t.clamp_min(0), T)
+    rise = 0.5 * A * t * t
+    cruise = 0.5 * A * tau * tau + V * (t - tau)
+    fall = 1 - 0.5 * A * (T - t) ** 2
+    s = torch.where(t < tau, rise, torch.where(t > T - tau, fall, cruise))
+    s = torch.where(T > 0, s, torch.ones_like(s))
+    return prof.start[pair] + s[:, None] * prof.step[pair]
+
+
+def move_rows(prof_start: torch.Tensor, prof_end: torch.Tensor, limits: JointLimits, lever: np.ndarray,
+              tol_m: float = 0.001):
+    """Row instants (s from the move's start) and joints of one move, dense enough that linear
+    interpolation in t between rows stays within ``tol_m`` of the planned motion at every point.
+
+    Rows and plan lie on the same joint-space line; between rows at ``h`` apart in an acceleration
+    phase the path parameter of the interpolation is off by at most ``A h^2 / 8`` (A the path
+    acceleration), so every point by at most ``A h^2 / 8 * K`` with ``K = sum_i |step_i| lever_i``:
+    rows ``h <= sqrt(8 tol / (A K))`` apart there; the cruise is linear in t (its two ends suffice)."""
+    prof = profile(prof_start, prof_end, limits)
+    T, tau, A = float(prof.duration), float(prof.tau), float(prof.accel)
+    if T <= 0:
+        return np.zeros(1), prof_start[None].numpy()
+    K = float((prof.step.abs() * torch.as_tensor(lever, dtype=D)).sum())
+    h = math.sqrt(8 * tol_m / max(A * K, 1e-12))
+    n = max(1, math.ceil(tau / h))
+    ts = np.unique(np.concatenate([np.linspace(0, tau, n + 1), np.linspace(T - tau, T, n + 1)]))
+    q = prof.positions(torch.as_tensor(ts, dtype=D)).numpy()
+    return ts, q

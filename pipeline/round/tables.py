@@ -1,0 +1,100 @@
+"""The round's tables: the round table, the spec's trajectory table, and the summary.
+
+- round table: ``hole_id, boom, order, t_start, t_end, q1 .. qn, status, reason``, one row per plan
+  hole in plan order; ``t_start``/``t_end`` bound the drilling (collaring to the end of retraction);
+  a hole no boom can drill keeps its row (``status = unreachable``, its reason, no boom, no times);
+- trajectory table (spec section 7): ``boom, t, q1 .. qn, event, hole_id``, every boom from park to
+  park; a row's event names what starts there (park, move, collar, drill, retract, wait, done).
+  Moves are the oracle's synchronised straight lines, sampled by
+  :func:`pipeline.round.oracle.move_rows` within ``traj_tol_m`` of the planned motion; full-turn
+  joints stay continuous along the file (they may leave [-180, 180] degrees). A boom done before the
+  makespan stays at its last row.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import torch
+
+from pipeline.round.instance import Instance
+from pipeline.round.oracle import move_rows
+from pipeline.round.timeline import Timeline, boom_times
+
+
+def round_table(inst: Instance, tl: Timeline, joints, joint_names) -> pd.DataFrame:
+    H = inst.n_holes
+    rows = {h: {"hole_id": inst.hole_ids[h], "boom": "", "order": np.nan, "t_start": np.nan, "t_end": np.nan,
+                **{n: np.nan for n in joint_names}, "status": "unreachable", "reason": inst.reason(h)}
+            for h in range(H)}
+    for b, route in enumerate(tl.routes):
+        q = np.asarray(joints[b])
+        for k, h in enumerate(route):
+            start = float(tl.arrive[b][k])
+            rows[h].update({"boom": inst.booms[b], "order": k + 1, "t_start": start,
+                            "t_end": start + float(inst.drill_s[h]), "status": "ok", "reason": ""})
+            rows[h].update(dict(zip(joint_names, q[h].tolist(), strict=True)))
+    out = pd.DataFrame([rows[h] for h in range(H)])
+    out["order"] = out["order"].astype("Int64")
+    return out
+
+
+def trajectory_table(inst: Instance, tl: Timeline, oracle, joint_names) -> pd.DataFrame:
+    H, frames = inst.n_holes, []
+    for b, route in enumerate(tl.routes):
+        q_cur = oracle.joints[b][H].clone()
+        ts, qs, ev, hid = [0.0], [q_cur.numpy()], ["park"], [""]
+        ready = 0.0
+        for k, tgt in enumerate([*route, H]):
+            ms, ar = float(tl.move_start[b][k]), float(tl.arrive[b][k])
+            if ms > ready and k > 0:
+                ts.append(ready), qs.append(q_cur.numpy()), ev.append("wait"), hid.append("")
+            if ar > ms:
+                rt, rq = move_rows(q_cur, oracle.joints[b][tgt], oracle.limits[b], oracle.levers[b].numpy(),
+                                   oracle.traj_tol_m)
+                for t, q in zip(rt[:-1], rq[:-1], strict=True):
+                    ts.append(ms + float(t)), qs.append(q), ev.append("move"), hid.append("")
+                q_cur = torch.as_tensor(rq[-1])
+            if tgt == H:
+                ts.append(ar), qs.append(q_cur.numpy()), ev.append("done"), hid.append("")
+                break
+            t, name = ar, inst.hole_ids[tgt]
+            for phase, dur in zip(("collar", "drill", "retract"), inst.phases[tgt], strict=True):
+                ts.append(t), qs.append(q_cur.numpy()), ev.append(phase), hid.append(name)
+                t += float(dur)
+            ready = t
+        df = pd.DataFrame(np.asarray(qs), columns=list(joint_names))
+        df.insert(0, "t", ts)
+        df.insert(0, "boom", inst.booms[b])
+        df["event"], df["hole_id"] = ev, hid
+        # equal instants (a move starting at 0, a phase of 0 s): the first row of the instant names it
+        frames.append(df[~df["t"].duplicated(keep="first")])
+    return pd.concat(frames, ignore_index=True)
+
+
+def summary(inst: Instance, tl: Timeline, lower_bound_s: float, naive: Timeline | None, nearest: Timeline | None,
+            bases, d_boom: float, move_kinds: dict | None = None, **extra) -> dict:
+    booms = {}
+    for b, name in enumerate(inst.booms):
+        t = boom_times(inst, tl, b)
+        booms[name] = {"base": [float(v) for v in bases[b]], "drilling_s": t["drilling_s"], "moving_s": t["moving_s"],
+                       "waiting_s": t["waiting_s"], "holes": t["holes"]}
+    n_moves = sum(len(r) + 1 for r in tl.routes)
+    out = {
+        "makespan_s": tl.makespan,
+        "lower_bound_s": lower_bound_s,
+        "makespan_over_bound": tl.makespan / lower_bound_s if lower_bound_s > 0 else float("nan"),
+        "naive_makespan_s": naive.makespan if naive is not None else None,
+        "nearest_makespan_s": nearest.makespan if nearest is not None else None,
+        "min_boom_clearance_m": tl.min_clearance + d_boom,
+        "d_boom_m": d_boom,
+        "conflicts_left": tl.conflicts_left,
+        "waits_inserted": len(tl.repairs),
+        "sequential_fallback": tl.sequential,
+        "holes_drilled": sum(len(r) for r in tl.routes),
+        "holes_unreachable": int((~inst.drillable).sum()),
+        "booms": booms,
+        "moves": move_kinds if move_kinds is not None else {"straight": n_moves},
+    }
+    out.update(extra)
+    return out

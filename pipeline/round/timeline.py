@@ -1,0 +1,268 @@
+"""The joint timeline of all booms, its boom-boom conflicts, and their resolution by waits.
+
+A boom's route (hole indices) becomes: standing at park, then per hole a move (the synchronised
+straight line, ``move_s``) and the drilling (collaring, penetration, retraction; the boom holds the
+hole's joints), then the move back to park, where it stays. A wait is a later start of a move: the
+boom stands at its previous node until then. Precedence pairs (i before j) delay j's move so that it
+arrives when i is finished (a fixed point over the booms; a cycle of precedences and route orders
+is an error).
+
+**Conflicts.** Segments of two booms that run at the same time are checked in time order by the
+oracle (:mod:`pipeline.round.oracle`); the earliest conflict is resolved first.
+
+**Repair rule.** Of the two segments in conflict, the one that began later gives way: the move that
+leads into it (the move itself, or the move into that standing place) starts when the other
+segment ends ("delay the later boom's move until the conflicting interval is over"). When the other
+segment is a boom's last standing at park, which never ends, that boom's move home gives way
+instead and starts when the first segment ends. Ties go against the boom of the higher index. When
+both segments are moves, the boom giving way would stand at its previous node during the other's
+move; if that place is in the other's way and the other's previous place is not in its own, they
+swap roles (without this, two booms whose places block each other's moves take turns forever).
+
+**Why it ends.** Every repair moves one move's start strictly later (to the end of a segment that
+ran past the conflict instant, so after the move's old start), and nothing ever moves a start
+earlier; the loop stops at the first conflict-free timeline, after ``max_repairs`` repairs, or when
+one pair of segments (named by the moves that lead into them) needed more than ``TURNS`` repairs.
+It need not reach a conflict-free timeline by itself: two booms whose places block each other's
+next moves (L cannot reach its hole while R stands at its own, R cannot leave while L stands where
+it waits) take turns forever, and no wait parts them. So then the timeline falls back to one boom
+at a time: each boom drills its whole route
+from park to park while every other boom stands at park. That timeline has no moving x moving or
+drilling x drilling pairs at all; it is conflict-free when every hole and every move of each boom is
+clear of the other booms at park (parks are clear of each other: the rig checks it at load), which
+holds when the reach table was solved with the other booms at park as obstacles. It is checked with
+the oracle like any other, and whatever conflict is left is counted in ``conflicts_left``, never
+hidden.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pipeline.core.errors import ConfigError
+from pipeline.round.instance import Instance
+
+TURNS = 8  # repairs of one pair of segments (by their moves) before the loop gives up on waits
+
+
+@dataclass
+class Timeline:
+    """Per boom: its route, the start of every move (the last one home) and its arrival."""
+
+    routes: list[list[int]]
+    move_start: list[np.ndarray]
+    arrive: list[np.ndarray]
+    park: int  # the park node index (H)
+    repairs: list[dict] = field(default_factory=list)
+    conflicts_left: int = 0
+    sequential: bool = False
+    min_clearance: float = math.inf  # smallest sampled boom-boom clearance (m, less d_boom)
+
+    @property
+    def makespan(self) -> float:
+        return max((float(a[-1]) for a in self.arrive), default=0.0)
+
+
+def simulate(inst: Instance, routes: list[list[int]], not_before: list[np.ndarray] | None = None) -> Timeline:
+    """Earliest times of every move given the routes, the waits ``not_before[b][k]`` (earliest start
+    of boom b's move k) and the instance's precedence pairs."""
+    H, drill = inst.n_holes, inst.drill_s
+    nb = not_before or [np.zeros(len(r) + 1) for r in routes]
+    preds: dict[int, list[int]] = {}
+    drillable = inst.drillable
+    for i, j in inst.precedence:
+        if drillable[i] and drillable[j]:
+            preds.setdefault(j, []).append(i)
+    end = np.full(H, -np.inf)
+    for _ in range(H + 2):  # a fixed point: each pass can only push ends later (a chain per pass)
+        starts, arrives, new_end = [], [], end.copy()
+        for b, route in enumerate(routes):
+            t, node = 0.0, H
+            ms, ar = np.empty(len(route) + 1), np.empty(len(route) + 1)
+            for k, tgt in enumerate([*route, H]):
+                mv = float(inst.move_s[b, node, tgt])
+                start = max(t, float(nb[b][k]))
+                for p in preds.get(tgt, ()):
+                    start = max(start, end[p] - mv)
+                ms[k], ar[k] = start, start + mv
+                if tgt != H:
+                    t = new_end[tgt] = ar[k] + drill[tgt]
+                node = tgt
+            starts.append(ms)
+            arrives.append(ar)
+        if np.array_equal(new_end, end):
+            return Timeline([list(r) for r in routes], starts, arrives, H)
+        end = new_end
+    raise ConfigError("round: the precedence pairs and the booms' hole orders form a cycle (a hole would have "
+                      "to wait for itself); check round.precedence")
+
+
+def segments(tl: Timeline, b: int) -> dict[str, np.ndarray]:
+    """Boom b's segments in time order: ``t0, t1, u, v`` (u == v: standing) and ``k`` (the move that
+    leads into it; -1 for the first standing at park). The last one (at park) ends at inf."""
+    H, route, ms, ar = tl.park, tl.routes[b], tl.move_start[b], tl.arrive[b]
+    nodes = [H, *route, H]
+    rows = []
+    prev_end = 0.0
+    for k in range(len(route) + 1):
+        if ms[k] > prev_end or k == 0:
+            rows.append((prev_end, ms[k], nodes[k], nodes[k], k - 1))
+        if ar[k] > ms[k]:
+            rows.append((ms[k], ar[k], nodes[k], nodes[k + 1], k))
+        prev_end = ar[k]
+    rows.append((ar[-1], math.inf, H, H, len(route)))
+    rows = [r for r in rows if r[1] > r[0] or r[1] == math.inf]
+    a = np.array(rows, dtype=float).reshape(-1, 5)
+    return {"t0": a[:, 0], "t1": a[:, 1], "u": a[:, 2].astype(int), "v": a[:, 3].astype(int), "k": a[:, 4].astype(int)}
+
+
+def _overlaps(sa: dict, sb: dict, since: float):
+    """Index pairs (i of a, j of b) of segments running at the same time, with hi > ``since``."""
+    j_lo = np.searchsorted(sb["t1"], sa["t0"], side="right")
+    j_hi = np.searchsorted(sb["t0"], sa["t1"], side="left")
+    n = np.clip(j_hi - j_lo, 0, None)
+    i = np.repeat(np.arange(len(sa["t0"])), n)
+    j = np.concatenate([np.arange(lo, hi) for lo, hi in zip(j_lo, j_hi, strict=True) if hi > lo] or [np.zeros(0, int)])
+    lo = np.maximum(sa["t0"][i], sb["t0"][j])
+    hi = np.minimum(sa["t1"][i], sb["t1"][j])
+    keep = (hi > lo) & (hi > since)
+    return i[keep], j[keep], lo[keep], hi[keep]
+
+
+def scan(tl: Timeline, oracle, since: float = -math.inf, full: bool = False, chunk: int = 256):
+    """The earliest conflict of the timeline after ``since`` (None if none) as a dict; with ``full``,
+    every pair is checked and ``(earliest, n_conflicts, min_clearance)`` is returned."""
+    B = len(tl.routes)
+    segs = [segments(tl, b) for b in range(B)]
+    found = []
+    for a in range(B):
+        for b in range(a + 1, B):
+            i, j, lo, hi = _overlaps(segs[a], segs[b], since)
+            found.append((a, b, i, j, lo, hi))
+    order = [(lo_k, a, b, i_k, j_k, hi_k) for a, b, i, j, lo, hi in found
+             for lo_k, i_k, j_k, hi_k in zip(lo, i, j, hi, strict=True)]
+    order.sort(key=lambda r: r[0])
+    best, n_bad, least = None, 0, math.inf
+    for s in range(0, len(order), chunk):
+        part = order[s:s + chunk]
+        if not full and best is not None and part[0][0] >= best["t"]:
+            break
+        for a in range(B):
+            for b in range(a + 1, B):
+                rows = [r for r in part if r[1] == a and r[2] == b]
+                if not rows:
+                    continue
+                i = np.array([r[3] for r in rows])
+                j = np.array([r[4] for r in rows])
+                lo = np.array([r[0] for r in rows])
+                hi = np.array([r[5] for r in rows])
+                sa = {k: segs[a][k][i] for k in segs[a]}
+                sb = {k: segs[b][k][j] for k in segs[b]}
+                first, low = oracle.check(a, sa, b, sb, lo, hi)
+                least = min(least, float(low.min()))
+                bad = np.isfinite(first)
+                n_bad += int(bad.sum())
+                if bad.any():
+                    m = int(np.argmin(first))
+                    if best is None or first[m] < best["t"]:
+                        best = {"t": float(first[m]), "a": a, "b": b, "seg_a": {k: v[m] for k, v in sa.items()},
+                                "seg_b": {k: v[m] for k, v in sb.items()}}
+    return (best, n_bad, least) if full else best
+
+
+def _clear(oracle, a: int, seg_a: dict, b: int, seg_b: dict, lo: float, hi: float) -> bool:
+    """Whether one pair of segments is clear over [lo, hi] (the oracle takes booms in index order)."""
+    if a > b:
+        a, seg_a, b, seg_b = b, seg_b, a, seg_a
+    one = lambda s: {k: np.array([v]) for k, v in s.items()}  # noqa: E731
+    first, _ = oracle.check(a, one(seg_a), b, one(seg_b), np.array([lo]), np.array([hi]))
+    return not np.isfinite(first[0])
+
+
+def _repair(tl: Timeline, c: dict, oracle) -> tuple[int, int, float, dict] | None:
+    """(boom, move index, new earliest start, record) that resolves conflict ``c`` (the module's rule);
+    None when neither side has a move to delay (both stand at park from the start: the rig's parks
+    are clear, so only a caller's oracle can say so)."""
+    sides = [(c["a"], c["seg_a"], c["b"], c["seg_b"]), (c["b"], c["seg_b"], c["a"], c["seg_a"])]
+    # The later-begun segment gives way; ties against the higher boom index.
+    sides.sort(key=lambda s: (s[1]["t0"], s[0]))
+    (e, seg_e, g, seg_g) = sides[0][0], sides[0][1], sides[1][0], sides[1][1]
+    if math.isinf(seg_e["t1"]):  # the earlier one is a boom done at park: it goes home after the other
+        g, seg_g, e, seg_e = e, seg_e, g, seg_g
+    both_move = seg_e["u"] != seg_e["v"] and seg_g["u"] != seg_g["v"]
+    if both_move:
+        # Two moves: the one giving way stands at its previous node meanwhile. If that place is in the
+        # other's way and the other's is not, the other gives way (else the two would take turns forever).
+        stand = lambda s: {"t0": s["t0"], "t1": s["t1"], "u": s["u"], "v": s["u"], "k": s["k"]}  # noqa: E731
+        if (not _clear(oracle, g, stand(seg_g), e, seg_e, seg_e["t0"], seg_e["t1"])
+                and _clear(oracle, e, stand(seg_e), g, seg_g, seg_g["t0"], seg_g["t1"])):
+            g, seg_g, e, seg_e = e, seg_e, g, seg_g
+    boom, k, until = g, int(seg_g["k"]), float(seg_e["t1"])
+    if k < 0:  # the giving way segment is the first standing at park: cannot be delayed, delay the other
+        boom, k, until = e, int(seg_e["k"]), float(seg_g["t1"])
+    if k < 0 or math.isinf(until):
+        return None
+    kind = "standing" if seg_e["u"] == seg_e["v"] and seg_g["u"] == seg_g["v"] else "moving"
+    rec = {"boom": boom, "move": k, "t": c["t"], "until": until, "kind": kind,
+           "nodes": (int(seg_g["v"]), int(seg_e["v"])) if boom == g else (int(seg_e["v"]), int(seg_g["v"])),
+           "booms": (g, e) if boom == g else (e, g)}
+    return boom, k, until, rec
+
+
+def sequential(inst: Instance, routes: list[list[int]]) -> Timeline:
+    """One boom at a time, each from park to park, in boom order."""
+    nb = [np.zeros(len(r) + 1) for r in routes]
+    t = 0.0
+    for b in range(len(routes)):
+        nb[b][0] = t
+        tl = simulate(inst, routes, nb)
+        t = float(tl.arrive[b][-1]) if routes[b] else t
+    tl = simulate(inst, routes, nb)
+    tl.sequential = True
+    return tl
+
+
+def resolve(inst: Instance, routes: list[list[int]], oracle, max_repairs: int = 300, measure: bool = True) -> Timeline:
+    """The routes' timeline with waits inserted until no conflict is left (module docstring)."""
+    nb = [np.zeros(len(r) + 1) for r in routes]
+    tl = simulate(inst, routes, nb)
+    repairs, since, seen = [], -math.inf, {}
+    for _ in range(max_repairs + 1):
+        c = scan(tl, oracle, since)
+        if c is None:
+            break
+        fix = _repair(tl, c, oracle) if len(repairs) < max_repairs else None
+        if fix is not None:  # the same two moves taking turns: waits alone will not part them
+            key = (c["a"], int(c["seg_a"]["k"]), c["b"], int(c["seg_b"]["k"]))
+            seen[key] = seen.get(key, 0) + 1
+            fix = fix if seen[key] <= TURNS else None
+        if fix is None:
+            tl = sequential(inst, routes)
+            break
+        boom, k, until, rec = fix
+        rec["wait_s"] = until - float(tl.move_start[boom][k])
+        repairs.append(rec)
+        nb[boom][k] = max(nb[boom][k], until)
+        new = simulate(inst, routes, nb)
+        changed = [np.flatnonzero(o != n) for o, n in zip(tl.move_start, new.move_start, strict=True)]
+        since = min((float(o[ch].min()) for o, ch in zip(tl.move_start, changed, strict=True) if len(ch)),
+                    default=since)
+        tl = new
+    tl.repairs = repairs
+    if measure:
+        _, tl.conflicts_left, tl.min_clearance = scan(tl, oracle, full=True)
+    return tl
+
+
+def boom_times(inst: Instance, tl: Timeline, b: int) -> dict[str, float]:
+    """Drilling, moving and waiting seconds of boom b (waiting: standing between drilling and its
+    next move, or at park before its first one; not the idle time at park once it is done)."""
+    route, ms, ar = tl.routes[b], tl.move_start[b], tl.arrive[b]
+    drilling = float(inst.drill_s[route].sum()) if route else 0.0
+    moving = float((ar - ms).sum())
+    ready = np.concatenate([[0.0], ar[:-1] + inst.drill_s[route]]) if route else np.zeros(1)
+    return {"drilling_s": drilling, "moving_s": moving, "waiting_s": float((ms - ready).sum()),
+            "holes": len(route), "end_s": float(ar[-1])}
