@@ -23,6 +23,7 @@ from pipeline.round.kinematic import kinematic_round
 from pipeline.round.oracle import lever_bounds
 from pipeline.round.plan import baseline, plan_round
 from pipeline.round.routing import route
+from pipeline.round.synthetic import boom_joints
 from pipeline.round.tables import round_table, summary, trajectory_table
 from pipeline.round.timeline import resolve, scan, simulate
 
@@ -185,18 +186,7 @@ def motion(jumbo8):
     return load_motion(jumbo8)
 
 
-def _joints(n, seed, q7, y_swing=(-12, 12)):
-    """Joint vectors of one boom around its face region: swing, lift, extensions varied; the feed
-    kept near +x (q5, q6 undo the lift and swing); q7 puts the feed on one side of the boom."""
-    g = torch.Generator().manual_seed(seed)
-    u = torch.rand(n, 8, generator=g, dtype=D)
-    q = torch.zeros(n, 8, dtype=D)
-    q[:, 0] = r(y_swing[0]) + u[:, 0] * r(y_swing[1] - y_swing[0])
-    q[:, 1] = r(-10) + u[:, 1] * r(30)
-    q[:, 2] = 3.2 + 0.8 * u[:, 2]
-    q[:, 4], q[:, 5], q[:, 6] = -q[:, 1], -q[:, 0], r(q7)
-    q[:, 7] = 2.0 + 0.8 * u[:, 7]
-    return q
+_joints = boom_joints  # joints around each boom's face region (feed near +x, q7 picks its side)
 
 
 MID_L = [r(3), 0.0, 3.5, 0.0, 0.0, r(-3), 0.0, 2.5]  # L's feed on its inner side: collar near y = +0.2
