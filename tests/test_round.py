@@ -23,6 +23,7 @@ from pipeline.round.kinematic import kinematic_round
 from pipeline.round.oracle import lever_bounds
 from pipeline.round.plan import baseline, plan_round
 from pipeline.round.routing import route
+from pipeline.round.synthetic import boom_joints
 from pipeline.round.tables import round_table, summary, trajectory_table
 from pipeline.round.timeline import resolve, scan, simulate
 
@@ -45,12 +46,10 @@ def synthetic(H=30, B=2, seed=0, unreachable=(), precedence=()):
     for h in unreachable:
         reach[:, h] = False
     parks = np.stack([np.full(B, 5.0), base_y, np.full(B, 1.6)], 1)
-    pts = np.concatenate([collars, parks.mean(0, keepdims=True)])
     move = np.stack([np.linalg.norm(np.concatenate([collars, parks[b:b + 1]])[:, None] -
                                     np.concatenate([collars, parks[b:b + 1]])[None], axis=-1) / 0.4 + 1.0
                      for b in range(B)])
     move[:, np.arange(H + 1), np.arange(H + 1)] = 0
-    del pts
     phases = drill_phases(g.uniform(3, 5, H))
     return Instance(tuple(f"B{b}" for b in range(B)), tuple(f"h{i}" for i in range(H)), reach, phases, move,
                     tuple(precedence), collars, base_y, parks)
@@ -185,18 +184,7 @@ def motion(jumbo8):
     return load_motion(jumbo8)
 
 
-def _joints(n, seed, q7, y_swing=(-12, 12)):
-    """Joint vectors of one boom around its face region: swing, lift, extensions varied; the feed
-    kept near +x (q5, q6 undo the lift and swing); q7 puts the feed on one side of the boom."""
-    g = torch.Generator().manual_seed(seed)
-    u = torch.rand(n, 8, generator=g, dtype=D)
-    q = torch.zeros(n, 8, dtype=D)
-    q[:, 0] = r(y_swing[0]) + u[:, 0] * r(y_swing[1] - y_swing[0])
-    q[:, 1] = r(-10) + u[:, 1] * r(30)
-    q[:, 2] = 3.2 + 0.8 * u[:, 2]
-    q[:, 4], q[:, 5], q[:, 6] = -q[:, 1], -q[:, 0], r(q7)
-    q[:, 7] = 2.0 + 0.8 * u[:, 7]
-    return q
+_joints = boom_joints  # joints around each boom's face region (feed near +x, q7 picks its side)
 
 
 MID_L = [r(3), 0.0, 3.5, 0.0, 0.0, r(-3), 0.0, 2.5]  # L's feed on its inner side: collar near y = +0.2
@@ -333,8 +321,7 @@ def test_trajectory_rows_respect_joint_speeds_and_the_1mm_rule(face, motion, jum
                     for e_exact, e_lin in zip(jumbo8.capsule_ends(jumbo8.frames(exact), body),
                                               jumbo8.capsule_ends(jumbo8.frames(lin), body), strict=True):
                         worst = max(worst, float((e_exact - e_lin).norm(dim=-1).max()))
-            q_cur = exact[-1] if len(tm) else q_cur
-            q_cur = prof.start + prof.step
+            q_cur = prof.start + prof.step  # continuous along the file (full-turn joints unwrapped)
     assert worst <= 0.001 + 1e-9
 
 

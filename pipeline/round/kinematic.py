@@ -8,6 +8,7 @@ hole's length and the boom's motion file (booms of one rig share one drilling mo
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
@@ -20,7 +21,13 @@ D = torch.float64
 
 
 def kinematic_round(rig, hole_ids: Sequence[str], joints: Sequence[torch.Tensor], reach, lengths, motions,
-                    collars=None, precedence=(), settings: RoundSettings | None = None, reasons=None):
+                    collars=None, precedence=(), settings: RoundSettings | None = None, reasons=None,
+                    clear_of_parks: bool = True):
+    """``clear_of_parks``: a hole's solution for boom b that breaks d_boom to another boom standing at
+    its park is taken out of b's reach (its reason says so). The round starts and ends with every boom
+    at park, and the one-boom-at-a-time fallback of the timeline is conflict-free only for holes clear
+    of the other parks (:mod:`pipeline.round.timeline`); the stage may instead solve each boom's holes
+    with the other booms at park as obstacles, which gives the same guarantee with fewer losses."""
     from pipeline.motion.timing import move_time
 
     settings = settings or RoundSettings()
@@ -36,4 +43,19 @@ def kinematic_round(rig, hole_ids: Sequence[str], joints: Sequence[torch.Tensor]
                     None if collars is None else np.asarray(collars, float),
                     np.array([m.base[1] for m in rig.booms]), parks, reasons)
     oracle = KinematicOracle(rig, nodes, [m.joints for m in motions], settings.sample_m, settings.traj_tol_m)
+    if clear_of_parks and len(rig.booms) > 1:
+        reach = np.array(reach, bool)
+        why = list(reasons) if reasons is not None else [""] * H
+        for b in range(len(rig.booms)):
+            for o in range(len(rig.booms)):
+                if o == b:
+                    continue
+                c = oracle.standing(b, o)[:H, H]
+                hit = reach[b] & (c < 0)
+                for h in np.flatnonzero(hit):
+                    note = (f"boom {rig.names[b]}: in the way of boom {rig.names[o]} at park "
+                            f"({c[h] + rig.d_boom:.3f} m < d_boom)")
+                    why[h] = f"{why[h]}; {note}" if why[h] else note
+                reach[b] &= ~hit
+        inst = dataclasses.replace(inst, reach=reach, reasons=tuple(why))
     return inst, oracle

@@ -14,19 +14,22 @@ oracle (:mod:`pipeline.round.oracle`); the earliest conflict is resolved first.
 leads into it (the move itself, or the move into that standing place) starts when the other
 segment ends ("delay the later boom's move until the conflicting interval is over"). When the other
 segment is a boom's last standing at park, which never ends, that boom's move home gives way
-instead and starts when the first segment ends. Ties go against the boom of the higher index. When
-both segments are moves, the boom giving way would stand at its previous node during the other's
-move; if that place is in the other's way and the other's previous place is not in its own, they
-swap roles (without this, two booms whose places block each other's moves take turns forever).
+instead and starts when the first segment ends. Ties go against the boom of the higher index. The
+boom giving way stands at its previous node (where that move starts) during the other's segment; if
+that place is in the other's way and the other's previous place is not in the way of the first
+segment, they swap roles (without this, two booms whose places block each other's moves take turns
+forever: R cannot reach its hole while L stands at its own, L cannot go on while R moves).
 
 **Why it ends.** Every repair moves one move's start strictly later (to the end of a segment that
 ran past the conflict instant, so after the move's old start), and nothing ever moves a start
-earlier; the loop stops at the first conflict-free timeline, after ``max_repairs`` repairs, or when
-one pair of segments (named by the moves that lead into them) needed more than ``TURNS`` repairs.
-It need not reach a conflict-free timeline by itself: two booms whose places block each other's
-next moves (L cannot reach its hole while R stands at its own, R cannot leave while L stands where
-it waits) take turns forever, and no wait parts them. So then the timeline falls back to one boom
-at a time: each boom drills its whole route
+earlier. Two booms can still take turns (each one's giving way puts it in the other's way), so
+when one move of boom g gives way to boom e for the third time and more, it waits for the end of
+e's next segment, then the one after, and so on up to e's return to park (it cannot escalate past
+e's last segment, so this ends too); of two booms only the first to escalate does, the other keeps
+plain waits. The loop stops at the first conflict-free timeline; after ``max_repairs`` repairs, or
+when an escalation would pass e's return to park or ``ESCALATIONS`` steps (a deadlock: g's place
+blocks e's next move and e's place blocks g's, which no wait parts), the timeline falls back to one
+boom at a time: each boom drills its whole route
 from park to park while every other boom stands at park. That timeline has no moving x moving or
 drilling x drilling pairs at all; it is conflict-free when every hole and every move of each boom is
 clear of the other booms at park (parks are clear of each other: the rig checks it at load), which
@@ -45,7 +48,7 @@ import numpy as np
 from pipeline.core.errors import ConfigError
 from pipeline.round.instance import Instance
 
-TURNS = 8  # repairs of one pair of segments (by their moves) before the loop gives up on waits
+ESCALATIONS = 4  # waits for the other boom's later segments before the loop gives up on waits
 
 
 @dataclass
@@ -101,8 +104,9 @@ def simulate(inst: Instance, routes: list[list[int]], not_before: list[np.ndarra
 
 
 def segments(tl: Timeline, b: int) -> dict[str, np.ndarray]:
-    """Boom b's segments in time order: ``t0, t1, u, v`` (u == v: standing) and ``k`` (the move that
-    leads into it; -1 for the first standing at park). The last one (at park) ends at inf."""
+    """Boom b's segments in time order: ``t0, t1, u, v`` (u == v: standing), ``k`` (the move that
+    leads into it; -1 for the first standing at park) and ``p`` (the node that move starts from). The
+    last one (at park) ends at inf."""
     H, route, ms, ar = tl.park, tl.routes[b], tl.move_start[b], tl.arrive[b]
     nodes = [H, *route, H]
     rows = []
@@ -116,7 +120,9 @@ def segments(tl: Timeline, b: int) -> dict[str, np.ndarray]:
     rows.append((ar[-1], math.inf, H, H, len(route)))
     rows = [r for r in rows if r[1] > r[0] or r[1] == math.inf]
     a = np.array(rows, dtype=float).reshape(-1, 5)
-    return {"t0": a[:, 0], "t1": a[:, 1], "u": a[:, 2].astype(int), "v": a[:, 3].astype(int), "k": a[:, 4].astype(int)}
+    k = a[:, 4].astype(int)
+    prev = np.array(nodes)[np.clip(k, 0, None)]  # where the leading move starts (park before the first)
+    return {"t0": a[:, 0], "t1": a[:, 1], "u": a[:, 2].astype(int), "v": a[:, 3].astype(int), "k": k, "p": prev}
 
 
 def _overlaps(sa: dict, sb: dict, since: float):
@@ -132,7 +138,7 @@ def _overlaps(sa: dict, sb: dict, since: float):
     return i[keep], j[keep], lo[keep], hi[keep]
 
 
-def scan(tl: Timeline, oracle, since: float = -math.inf, full: bool = False, chunk: int = 256):
+def scan(tl: Timeline, oracle, since: float = -math.inf, full: bool = False, chunk: int = 32):
     """The earliest conflict of the timeline after ``since`` (None if none) as a dict; with ``full``,
     every pair is checked and ``(earliest, n_conflicts, min_clearance)`` is returned."""
     B = len(tl.routes)
@@ -192,14 +198,14 @@ def _repair(tl: Timeline, c: dict, oracle) -> tuple[int, int, float, dict] | Non
     (e, seg_e, g, seg_g) = sides[0][0], sides[0][1], sides[1][0], sides[1][1]
     if math.isinf(seg_e["t1"]):  # the earlier one is a boom done at park: it goes home after the other
         g, seg_g, e, seg_e = e, seg_e, g, seg_g
-    both_move = seg_e["u"] != seg_e["v"] and seg_g["u"] != seg_g["v"]
-    if both_move:
-        # Two moves: the one giving way stands at its previous node meanwhile. If that place is in the
-        # other's way and the other's is not, the other gives way (else the two would take turns forever).
-        stand = lambda s: {"t0": s["t0"], "t1": s["t1"], "u": s["u"], "v": s["u"], "k": s["k"]}  # noqa: E731
-        if (not _clear(oracle, g, stand(seg_g), e, seg_e, seg_e["t0"], seg_e["t1"])
-                and _clear(oracle, e, stand(seg_e), g, seg_g, seg_g["t0"], seg_g["t1"])):
-            g, seg_g, e, seg_e = e, seg_e, g, seg_g
+    # The one giving way stands at its previous node (where its leading move starts) meanwhile. If that
+    # place is in the other's way and the other's previous place is not in its own, they swap roles
+    # (else two booms whose places block each other's moves take turns forever).
+    stand = lambda s: {"t0": s["t0"], "t1": s["t1"], "u": s["p"], "v": s["p"], "k": s["k"], "p": s["p"]}  # noqa: E731
+    if (not math.isinf(seg_g["t1"]) and seg_g["k"] >= 0 and seg_e["k"] >= 0
+            and not _clear(oracle, g, stand(seg_g), e, seg_e, seg_e["t0"], min(seg_e["t1"], seg_g["t1"]))
+            and _clear(oracle, e, stand(seg_e), g, seg_g, seg_g["t0"], seg_g["t1"])):
+        g, seg_g, e, seg_e = e, seg_e, g, seg_g
     boom, k, until = g, int(seg_g["k"]), float(seg_e["t1"])
     if k < 0:  # the giving way segment is the first standing at park: cannot be delayed, delay the other
         boom, k, until = e, int(seg_e["k"]), float(seg_g["t1"])
@@ -209,6 +215,31 @@ def _repair(tl: Timeline, c: dict, oracle) -> tuple[int, int, float, dict] | Non
     rec = {"boom": boom, "move": k, "t": c["t"], "until": until, "kind": kind,
            "nodes": (int(seg_g["v"]), int(seg_e["v"])) if boom == g else (int(seg_e["v"]), int(seg_g["v"])),
            "booms": (g, e) if boom == g else (e, g)}
+    return boom, k, until, rec
+
+
+def _escalate(tl: Timeline, fix, seen: dict):
+    """The same move of boom g giving way to boom e again: from the third time on, it waits for the
+    end of e's n-th next segment instead (n = repeats - 2), up to e's return to park; None past that.
+    The first boom to escalate against another is the only one of the two that does (were both to,
+    each would wait for the other's later and later segments)."""
+    boom, k, until, rec = fix
+    other = rec["booms"][1]
+    key = (boom, k, other)
+    seen[key] = n = seen.get(key, 0) + 1
+    yielding = seen.setdefault("yielding", set())
+    if n <= 2 or (other, boom) in yielding:  # only one of two booms yields more and more to the other
+        return fix
+    yielding.add((boom, other))
+    seg = segments(tl, other)
+    last = len(seg["t0"]) - 1  # e's final standing at park
+    at = int(np.searchsorted(seg["t1"], until - 1e-9))  # the segment whose end was ``until``
+    if at + n - 2 > last or n - 2 > ESCALATIONS:
+        return None
+    nxt = at + n - 2
+    later = float(seg["t1"][nxt]) if nxt < last else float(seg["t0"][last])  # the last: e back at park
+    rec["until"] = until = max(until, later)
+    rec["escalated"] = n - 2
     return boom, k, until, rec
 
 
@@ -235,10 +266,8 @@ def resolve(inst: Instance, routes: list[list[int]], oracle, max_repairs: int = 
         if c is None:
             break
         fix = _repair(tl, c, oracle) if len(repairs) < max_repairs else None
-        if fix is not None:  # the same two moves taking turns: waits alone will not part them
-            key = (c["a"], int(c["seg_a"]["k"]), c["b"], int(c["seg_b"]["k"]))
-            seen[key] = seen.get(key, 0) + 1
-            fix = fix if seen[key] <= TURNS else None
+        if fix is not None:
+            fix = _escalate(tl, fix, seen)
         if fix is None:
             tl = sequential(inst, routes)
             break
