@@ -3,6 +3,7 @@ headless browser showing that table on a fresh profile, where the experiment's p
 
 import importlib.util
 import shutil
+import sys
 from pathlib import Path
 
 import pytest
@@ -56,3 +57,38 @@ def test_a_headless_browser_lands_on_the_runs_table(tmp_path):
     assert report["ok"], report
     assert report["run_names_shown"] == ["evaluate", "train-cuikm"]
     assert report["genai_on_plain_url"] and not report["runs_table_on_plain_url"]  # what a plain URL gives
+
+
+def _dvc() -> str | None:
+    local = Path(sys.executable).with_name("dvc")
+    return str(local) if local.is_file() else shutil.which("dvc")
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("chromium") is None or _dvc() is None, reason="needs chromium and dvc")
+def test_dvc_plots_render_offline_with_the_project_template(tmp_path):
+    """The project's plots section, template and page in a scratch DVC repo: all four charts draw in a
+    browser that cannot reach any host, each method in its own colour on a log axis."""
+    import yaml
+
+    root = Path(__file__).resolve().parents[1]
+    repo = tmp_path / "repo"
+    shutil.copytree(root / ".dvc" / "plots", repo / ".dvc" / "plots")
+    shutil.copy(root / ".dvc" / "config", repo / ".dvc" / "config")
+    plots = yaml.safe_load((root / "dvc.yaml").read_text())["plots"]
+    (repo / "dvc.yaml").write_text(yaml.safe_dump({"plots": plots}))
+    (repo / "params.yaml").write_text("paths:\n  data: data\n")
+    (repo / "data" / "models").mkdir(parents=True)
+    for k, m in enumerate(["sikm", "sikm_best", "uikm", "cuikm"]):
+        rows = [f"{s},{1000 / (s + 1) + k},{2.0 / (s + 1)},{900 / (s + 1)},{800 / (s + 1)}" for s in (0, 50, 100, 149)]
+        (repo / "data" / "models" / f"{m}_history.csv").write_text(
+            "step,val_hole_mm,loss,val_start_mm,val_preview_mm\n" + "\n".join(rows) + "\n")
+    script = importlib.util.spec_from_file_location("check_plots_offline", SCRIPT.with_name("check_plots_offline.py"))
+    sys.path.insert(0, str(SCRIPT.parent))
+    module = importlib.util.module_from_spec(script)
+    script.loader.exec_module(module)
+    page = module.render(repo, _dvc())
+    spec = page.read_text()
+    assert '"type": "log"' in spec and "regexp('^.*/|_history[.]csv$', 'g')" in spec
+    report = module.check(page)
+    assert report == {**report, "plots": 4, "drawn": 4, "cdn_scripts": 0, "ok": True}
