@@ -13,6 +13,7 @@ from __future__ import annotations
 import hydra
 from omegaconf import DictConfig
 
+from pipeline.core.signals import terminate_as_interrupt
 from pipeline.tracking import dashboard
 from pipeline.tracking.runs import TrackingSettings
 
@@ -25,7 +26,8 @@ def main(cfg: DictConfig) -> None:
     if proc is None:
         return
     try:
-        proc.wait()
+        with terminate_as_interrupt():  # Ctrl-C or SIGTERM: the UI (its own process group) goes too
+            proc.wait()
     except KeyboardInterrupt:
         pass
     finally:
