@@ -76,13 +76,14 @@ def test_sigterm_then_resume_gives_the_uninterrupted_weights(study, make_cfg, mo
     assert "checkpoints/resume.pt" in {a.path for a in client.list_artifacts(killed.info.run_id, "checkpoints")}
 
     monkeypatch.undo()
-    train.run(make_cfg(tmp, *STEPS))
+    train.run(make_cfg(tmp, *STEPS, "runtime.progress=true"))  # how it runs may change (outside the digest)
     assert _same(_weights(tmp / "data" / "models" / "cuikm.pt"), reference)
     assert not list((tmp / "data" / "models").glob(".cuikm.run-*"))  # the private folder goes once published
     client, runs = _runs(tmp)
     resumed = client.get_run(killed.info.run_id)  # the same run, continued
     assert len(runs) == 2 and resumed.info.status == "FINISHED"
     assert resumed.data.tags["resumed_at_step"] == "51" and "run.end_reason" not in resumed.data.tags
+    assert resumed.data.params["runtime.progress"] == "False"  # a param keeps its first value
     steps = [m.step for m in client.get_metric_history(resumed.info.run_id, "val_hole_mm")]
     assert steps == [0, 50, 100, 149]
 

@@ -241,7 +241,11 @@ class StageRun:
         if self.active:
             import mlflow
 
-            items = list(flatten(params).items())
+            logged = mlflow.tracking.MlflowClient().get_run(self.run_id).data.params  # a resumed run has some
+            changed = sorted(k for k, v in flatten(params).items() if k in logged and logged[k] != v)
+            if changed:  # MLflow refuses to change a param; only settings outside the resume digest can differ
+                log.warning("run %s keeps its first values of %s", self.run_id, changed)
+            items = [(k, v) for k, v in flatten(params).items() if k not in logged]
             for i in range(0, len(items), 100):  # MLflow takes at most 100 params a batch
                 mlflow.log_params(dict(items[i : i + 100]))
 

@@ -132,7 +132,7 @@ class MlflowSweepCallback(Callback):
 
             settings = TrackingSettings.from_config(config.tracking)
             exp_id = prepare_store(settings)
-            mark_stale_runs(exp_id)
+            mark_stale_runs()
             client = MlflowClient(settings.uri)
             sweep = " ".join(config.hydra.overrides.task)
             run = client.create_run(exp_id, run_name=f"sweep {sweep}"[:250],
