@@ -7,11 +7,19 @@ Writes ``paths.data/models/<method>.pt`` (loads alone with ``pipeline.learning.m
 ``<method>_history.csv`` (the held-out training curves) and ``<method>_final.json``. The three are
 written in a private folder first, logged to MLflow from there, and only then moved into place
 together: what a run logged is always its own model, whatever other trainings run beside it.
+
+The training's private folder ``.<method>.run-<digest>/`` (the digest of its settings, data and code)
+holds its resume state ``resume.pt``, written every ``train.checkpoint_every`` steps and on SIGTERM /
+SIGINT and logged to the run as ``checkpoints/resume.pt``; with ``train.resume=true`` (the default) a
+training with that digest continues from it, in the same MLflow run, to the weights an uninterrupted
+training gives. The folder is removed when the training's files are published.
 """
 
 from __future__ import annotations
 
+import hashlib
 import logging
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -26,22 +34,35 @@ from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import configure_process, resolve_device
 from pipeline.core.io import publish, require_writable, write_csv, write_json
 from pipeline.core.settings import RuntimeSettings
+from pipeline.data.tables import POSE_COLUMNS
 from pipeline.evaluation.metrics import solution_table, summarize
 from pipeline.geometry.collision import SafetyDistances
 from pipeline.learning.models import IKNet, ModelSettings, build_model, save_checkpoint
 from pipeline.learning.training import (
+    Checkpoints,
     MethodSettings,
     TrainSettings,
     check_method_key,
     final_metrics,
     fit,
     load_training_data,
+    load_training_state,
+    save_training_state,
     training_batches,
+    training_digest,
 )
 from pipeline.tracking import sweep
-from pipeline.tracking.runs import StageRun, TrackingSettings, log_training_progress, stage_run
+from pipeline.tracking.runs import StageRun, TrackingSettings, log_training_progress, select_params, stage_run
 
 log = logging.getLogger(__name__)
+RESUME_FILE = "resume.pt"
+
+
+# What a training reads, and so what its run logs as params (not the other stages' settings).
+PARAM_KEYS = ["model", "train", "holes.face_x", "holes.cone_deg", "holes.inset", "safety", "tunnel", "boom", "device",
+              "runtime"]
+# Settings that change how a training runs, not what it computes: outside its resume digest.
+NOT_IN_DIGEST = {"runtime": None, "train": ("resume", "checkpoint_every")}
 
 
 def run(cfg: DictConfig) -> dict:
@@ -55,59 +76,104 @@ def run(cfg: DictConfig) -> dict:
     safety, sampling = build_safety(cfg.boom, cfg.tunnel, cfg.safety), hole_sampling(cfg.holes)
     train_safety = safety.with_distances(SafetyDistances.from_config(method.train_safety))
     # A sweep job keeps its model in its own job folder; a single run writes paths.data/models.
-    models_dir = require_writable(sweep.job_output_dir() or project_path(cfg.paths.data) / "models", "paths.data")
+    job_dir = sweep.job_output_dir()
+    models_dir = require_writable(job_dir or project_path(cfg.paths.data) / "models", "paths.data")
     data = load_training_data(project_path(cfg.paths.data) / "holes", safety.boom, safety, sampling,
                               method.supervised, settings.val_size, settings.val_seed, method.sup_set)
     with torch.random.fork_rng(devices=[]):  # seeded initial weights without touching the global generator
         torch.manual_seed(settings.seed)
         model = build_model(safety.boom, data.pose.mean(0), data.pose.std(0), model_s.width, model_s.depth,
                             model_s.activation).to(device)
-    run_cfg = {**as_dict(cfg), "method": as_dict(OmegaConf.select(cfg, settings.method_key))}
-    run_cfg.pop("baselines", None)  # what this run trained, without the other methods' configs
-    tags = {"stage": "train", "method": method.name, **sweep.child_tags()}
-    with stage_run(tracking, f"train-{method.name}", tags, system_metrics=True) as mlrun:
+    run_cfg = {"method": as_dict(OmegaConf.select(cfg, settings.method_key)),
+               **select_params(as_dict(cfg), PARAM_KEYS)}
+    digest = training_digest(_digest_config(run_cfg, str(device)), [path for path, _ in data.files.values()])
+    run_dir = models_dir / f".{method.name}.run-{digest[:12]}"  # private to this training (config, data, code)
+    resume = load_training_state(run_dir / RESUME_FILE, digest) if settings.resume else None
+    tags = {"stage": "train", "method": method.name, "train.digest": digest, **sweep.child_tags()}
+    with stage_run(tracking, f"train-{method.name}", tags, system_metrics=True,
+                   resume_run_id=resume and resume.get("mlflow_run_id")) as mlrun:
         sweep.record_job_run(mlrun.run_id)
         mlrun.log_params(run_cfg)
-        for context, (path, df) in data.files.items():
-            mlrun.log_dataset(df, path, context)
+        inputs = {context: mlrun.log_dataset(df, path, context) for context, (path, df) in data.files.items()}
+        inputs["validation"] = mlrun.log_frame_dataset(
+            pd.DataFrame(data.val_pose.numpy(), columns=POSE_COLUMNS), f"held-out holes (val_seed={settings.val_seed})",
+            "validation")
+        if resume is not None:
+            mlrun.set_tags({"resumed_at_step": str(resume["step"])})
+            log.info("train %s: resuming at step %d of %d from %s", method.name, resume["step"], settings.steps,
+                     run_dir / RESUME_FILE)
+
+        def save_state(state: dict) -> None:
+            save_training_state(run_dir / RESUME_FILE, state, digest, {"mlflow_run_id": mlrun.run_id})
+            mlrun.log_artifact(run_dir / RESUME_FILE, "checkpoints")
+
         t0 = time.perf_counter()
         history = fit(model, safety.boom, train_safety, method.objective,
                       training_batches(data, method.objective, settings, safety, sampling, device),
                       settings.steps, settings.lr, data.val_pose.float().to(device), settings.eval_every,
                       settings.grad_clip, progress=runtime.progress, keep_best=settings.keep_best,
                       on_eval=lambda step, rec, elapsed: log_training_progress(
-                          mlrun, step, settings.steps, rec, elapsed, method.name, echo=not runtime.progress))
+                          mlrun, step, settings.steps, rec, elapsed, method.name, echo=not runtime.progress),
+                      checkpoints=Checkpoints(save_state, settings.checkpoint_every, resume))
         model = model.cpu()
+        train_s = time.perf_counter() - t0 + (resume["elapsed_s"] if resume else 0.0)
         final = final_metrics(model, data.val_pose.float(), lambda p, q: summarize(solution_table(p, q, safety)),
-                              history, time.perf_counter() - t0)
-        save_outputs(model, history, final, models_dir, method.name, as_dict(cfg.boom), run_cfg, mlrun, tracking,
-                     runtime.log_model, data.val_pose[:4].float().numpy())
+                              history, train_s)
+        register = tracking.register_models and job_dir is None  # a sweep's variants stay in their runs
+        save_outputs(model, history, final, models_dir, run_dir, method.name, as_dict(cfg.boom), run_cfg, mlrun,
+                     f"{tracking.experiment}-{method.name}" if register else None, runtime.log_model,
+                     data.val_pose[:4].float().numpy(), inputs)
     log.info("trained %s in %.0f s: held-out hole-seeking error %.2f mm -> %s",
              method.name, final["train_seconds"], final["val_hole_mm"], models_dir / f"{method.name}.pt")
     return {"checkpoint": str(models_dir / f"{method.name}.pt"), **final}
 
 
-def save_outputs(model: IKNet, history: list[dict], final: dict, models_dir: Path, name: str, boom_cfg: dict,
-                 run_cfg: dict, mlrun: StageRun, tracking: TrackingSettings, log_model: bool, example) -> None:
-    """Checkpoint, history and summary into a private folder, logged from there, then published."""
-    with tempfile.TemporaryDirectory(prefix=f".{name}.run-", dir=models_dir) as tmp:
-        files = {Path(tmp) / f: models_dir / f for f in (f"{name}.pt", f"{name}_history.csv", f"{name}_final.json")}
-        ckpt, hist, summary = files
-        save_checkpoint(ckpt, model, boom_cfg, {"method": name, "history": history, "final": final,
-                                                "config": run_cfg, "mlflow_run_id": mlrun.run_id})
-        hist_df = pd.DataFrame(history)
-        write_csv(hist_df, hist)
-        write_json({"method": name, "overrides": sweep.job_overrides(), **final}, summary)
-        mlrun.log_metrics(final, prefix="final_")
-        if mlrun.active:
-            from pipeline.evaluation.plots import training_curves
+def _digest_config(run_cfg: dict, device: str) -> dict:
+    out = {k: v for k, v in run_cfg.items() if k not in NOT_IN_DIGEST or NOT_IN_DIGEST[k]}
+    out["train"] = {k: v for k, v in out["train"].items() if k not in NOT_IN_DIGEST["train"]}
+    return {**out, "device": device}
 
-            mlrun.log_figure(training_curves({name: hist_df}), f"figures/training_{name}.png")
-            if log_model:
-                mlrun.log_network(model, example, ckpt, name=name, step=int(final["kept_step"]),
-                                  registered_name=f"{tracking.experiment}-{name}" if tracking.register_models else None)
-            mlrun.log_artifact(ckpt)
-        publish(files, models_dir / f".{name}.lock")
+
+def save_outputs(model: IKNet, history: list[dict], final: dict, models_dir: Path, run_dir: Path, name: str,
+                 boom_cfg: dict, run_cfg: dict, mlrun: StageRun, registered_name: str | None, log_model: bool,
+                 example, inputs: dict) -> None:
+    """Checkpoint, history and summary into the training's private folder, logged from there, then
+    published; the folder (with its resume state) is removed once they are in place."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    out = Path(tempfile.mkdtemp(prefix="out-", dir=run_dir))  # this process's own, even beside a twin training
+    files = {out / f: models_dir / f for f in (f"{name}.pt", f"{name}_history.csv", f"{name}_final.json")}
+    ckpt, hist, summary = files
+    save_checkpoint(ckpt, model, boom_cfg, {"method": name, "history": history, "final": final,
+                                            "config": run_cfg, "mlflow_run_id": mlrun.run_id})
+    hist_df = pd.DataFrame(history)
+    write_csv(hist_df, hist)
+    write_json({"method": name, "overrides": sweep.job_overrides(), **final}, summary)
+    if mlrun.active:
+        from pipeline.evaluation.plots import training_curves
+
+        mlrun.log_figure(training_curves({name: hist_df}), f"figures/training_{name}.png")
+        kept = int(final["kept_step"])
+        info = mlrun.log_network(model, example, ckpt, name=name, step=kept,
+                                 registered_name=registered_name) if log_model else None
+        model_id = info.model_id if info is not None else None
+        # after the curves, linked to the model: held-out values on the held-out holes, the kept step's
+        # loss on the training data (the model page lists both datasets), the rest on their own
+        kept_rec = next((r for r in history if r.get("kept")), history[-1])
+        mlrun.log_summary({k: v for k, v in final.items() if k.startswith("val_")}, kept, model_id,
+                          inputs.get("validation"))
+        mlrun.log_summary({"loss": kept_rec["loss"]}, kept, model_id, inputs.get("training"))
+        mlrun.log_summary({k: v for k, v in final.items() if not k.startswith("val_")}, kept, model_id)
+        mlrun.log_artifact(ckpt)
+    publish(files, lock_path(models_dir, name))
+    shutil.rmtree(run_dir, ignore_errors=True)
+
+
+def lock_path(models_dir: Path, name: str) -> Path:
+    """The lock that serialises publishing ``name`` into ``models_dir``: in the temporary folder, keyed by
+    the destination, so no lock file is left among the models (removing it after use would not be
+    safe: a waiting process may hold it open)."""
+    key = hashlib.sha1(str(models_dir.resolve()).encode()).hexdigest()[:16]
+    return Path(tempfile.gettempdir()) / "boom-ik-locks" / f"{key}-{name}.lock"
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")

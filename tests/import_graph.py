@@ -22,7 +22,7 @@ LAYERS = ["core", "optim", "geometry", "data", "assembly", "learning", "solvers"
           "deploy", "plans", "motion", "round", "tracking", "stages"]
 PRODUCT_PACKAGES = {"plans", "motion", "round"}
 STUDY_STAGES = {"generate", "train", "evaluate", "benchmark", "paper_baselines", "report", "derive_box", "export",
-                "export_benchmark", "calibrate", "params"}
+                "export_benchmark", "calibrate", "params", "dashboard"}
 PRODUCT_STAGES = {"solve", "demo_face"}
 
 

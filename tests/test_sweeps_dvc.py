@@ -94,8 +94,8 @@ def test_pareto_front_and_labels():
     runs = pd.DataFrame({
         "run_id": list("abcd"), "status": ["FINISHED"] * 4,
         "tags.sweep.overrides": [f"experiment=quick method.mu={m}" for m in (0.1, 1, 10, 100)],
-        "metrics.final_val_hole_mm": [3.0, 3.5, 4.0, 6.0],
-        "metrics.final_val_collision_rate": [0.2, 0.01, 0.01, 0.0],
+        "metrics.summary/val_hole_mm": [3.0, 3.5, 4.0, 6.0],
+        "metrics.summary/val_collision_rate": [0.2, 0.01, 0.01, 0.0],
     })
     table = summary_table(runs)
     assert list(table["overrides"]) == ["method.mu=0.1", "method.mu=1", "method.mu=10", "method.mu=100"]

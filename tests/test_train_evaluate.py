@@ -72,6 +72,13 @@ def test_mlflow_holds_the_runs(study, make_cfg):
         assert run.info.status == "FINISHED"
         assert run.data.params["method.name"] == m and run.data.params["model.width"] == str(cfg.model.width)
         assert run.data.params["safety.wall"] == "0.5"
+        # only the settings training reads: no other stage's, and no other method's
+        assert not [k for k in run.data.params if k.split(".")[0] in ("benchmark", "eval", "baselines", "calibration",
+                                                                       "solve", "export", "tracking", "paths")]
+        assert run.data.params["train.lr"] == "0.001" and run.data.params["train.steps"] == "150"
+        final = json.loads((tmp / "data" / "models" / f"{m}_final.json").read_text())
+        assert run.data.metrics["summary/val_hole_mm"] == float(f"{final['val_hole_mm']:.4g}")
+        assert run.data.metrics["summary/kept_step"] == final["kept_step"]
         steps = [x.step for x in client.get_metric_history(run.info.run_id, "val_hole_mm")]
         assert steps == [0, 50, 100, 149]
         artifacts = {a.path for a in client.list_artifacts(run.info.run_id)}

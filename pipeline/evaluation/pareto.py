@@ -1,7 +1,7 @@
 """The sweep's trade-off: accuracy against safety of every job, and the Pareto front among them.
 
 Input: one row per job in the columns ``mlflow.search_runs`` gives (``run_id``,
-``tags.sweep.overrides``, ``status``, ``metrics.final_*``); :mod:`pipeline.tracking.sweep` fetches
+``tags.sweep.overrides``, ``status``, ``metrics.summary/*``); :mod:`pipeline.tracking.sweep` fetches
 them and logs what this module computes.
 """
 
@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-SUMMARY_METRICS = ["final_val_hole_mm", "final_val_hole_mm_p95", "final_val_collision_rate",
-                   "final_val_any_violation_share", "final_train_seconds"]
+SUMMARY_METRICS = ["summary/val_hole_mm", "summary/val_hole_mm_p95", "summary/val_collision_rate",
+                   "summary/val_any_violation_share", "summary/train_seconds"]
 
 
 def pareto_front(error: np.ndarray, rate: np.ndarray) -> np.ndarray:
@@ -29,7 +29,7 @@ def summary_table(runs: pd.DataFrame) -> pd.DataFrame:
     cols = {"run_id": "run_id", "tags.sweep.overrides": "overrides", "status": "status"}
     df = runs.rename(columns=cols).reindex(columns=list(cols.values())).copy()
     for m in SUMMARY_METRICS:
-        df[m.removeprefix("final_")] = runs[f"metrics.{m}"] if f"metrics.{m}" in runs else np.nan
+        df[m.removeprefix("summary/")] = runs[f"metrics.{m}"] if f"metrics.{m}" in runs else np.nan
     # Label each job by what it changes: drop the overrides every job of the sweep shares.
     tokens = [str(o).split() for o in df["overrides"].fillna("")]
     common = set.intersection(*map(set, tokens)) if len(tokens) > 1 else set()

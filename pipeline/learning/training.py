@@ -2,22 +2,39 @@
 
 The stage (:mod:`pipeline.train`) reads as config -> :func:`load_training_data` -> ``build_model``
 -> :func:`fit` -> :func:`final_metrics` -> save and log; each step is a plain function here.
+
+A training resumes exactly: :func:`fit` can save its whole state (weights, optimiser, schedule, the
+torch / numpy / Python RNGs, the batch source's generator, step, history, best weights) every N steps
+and when SIGTERM or SIGINT arrives (deferred to the next step boundary, so the state is consistent),
+and continue from such a state to the same weights an uninterrupted training gives.
 """
 
 from __future__ import annotations
 
+import contextlib
+import copy
+import hashlib
+import json
+import logging
 import math
+import pickle
+import random
+import signal
+import threading
 import time
-from collections.abc import Callable, Iterator, Mapping
+import zipfile
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import torch
 from tqdm.auto import tqdm
 
 from pipeline.core.errors import ConfigError, InputError
+from pipeline.core.io import atomic_write, file_md5
 from pipeline.core.settings import parse, rule
-from pipeline.core.signals import raise_if_terminated
+from pipeline.core.signals import Terminated, raise_if_terminated
 from pipeline.data.hole_sets import read_hole_poses, read_hole_table
 from pipeline.data.holes import HoleSampling, sample_holes
 from pipeline.data.tables import POSE_COLUMNS
@@ -25,6 +42,8 @@ from pipeline.geometry.collision import SafetyDistances, SafetyModel
 from pipeline.geometry.kinematics import Boom, pose_errors
 from pipeline.learning.losses import POSE_LOSSES, joint_loss, pose_loss, safety_terms, total_loss
 from pipeline.learning.models import IKNet
+
+log = logging.getLogger(__name__)
 
 Batches = Iterator[tuple[torch.Tensor, torch.Tensor | None]]
 
@@ -44,6 +63,8 @@ class TrainSettings:
     grad_clip: float | None = field(default=None, metadata=rule(gt=0))
     method_key: str = "method"
     keep_best: bool = True  # end with the weights of the best held-out evaluation, not the last step's
+    checkpoint_every: int = field(default=1000, metadata=rule(ge=0))  # steps between resume states (0: signals only)
+    resume: bool = True  # continue an interrupted training of the same config, data and code from its state
 
     @classmethod
     def from_config(cls, node: Mapping) -> TrainSettings:
@@ -109,22 +130,54 @@ def loss_terms(
 
 
 # ---------------------------------------------------------------------------------------- data
-def dataset_batches(pose: torch.Tensor, q: torch.Tensor | None, batch: int, seed: int) -> Batches:
+class _SeededBatches:
+    """An endless batch iterator driven by one CPU generator, whose state a checkpoint keeps."""
+
+    def __init__(self, seed: int):
+        self.gen = torch.Generator().manual_seed(seed)
+
+    def __iter__(self):
+        return self
+
+    def state(self) -> torch.Tensor:
+        return self.gen.get_state()
+
+    def load_state(self, state: torch.Tensor) -> None:
+        self.gen.set_state(state)
+
+
+class DatasetBatches(_SeededBatches):
     """Random minibatches from a fixed set (Table 1: "select batch size group data at random")."""
-    gen = torch.Generator().manual_seed(seed)
-    while True:
-        idx = torch.randint(len(pose), (batch,), generator=gen).to(pose.device)
-        yield pose[idx], (None if q is None else q[idx])
+
+    def __init__(self, pose: torch.Tensor, q: torch.Tensor | None, batch: int, seed: int):
+        super().__init__(seed)
+        self.pose, self.q, self.batch = pose, q, batch
+
+    def __next__(self):
+        idx = torch.randint(len(self.pose), (self.batch,), generator=self.gen).to(self.pose.device)
+        return self.pose[idx], (None if self.q is None else self.q[idx])
 
 
-def fresh_hole_batches(
-    safety: SafetyModel, sampling: HoleSampling, batch: int, seed: int, device, dtype=torch.float32
-) -> Batches:
+class FreshHoleBatches(_SeededBatches):
     """A new set of drillable holes every step, drawn like Omega_unsup."""
-    gen = torch.Generator().manual_seed(seed)
-    while True:
-        pose, _ = sample_holes(batch, safety, sampling, gen)
-        yield pose.to(device=device, dtype=dtype), None
+
+    def __init__(self, safety: SafetyModel, sampling: HoleSampling, batch: int, seed: int, device,
+                 dtype=torch.float32):
+        super().__init__(seed)
+        self.safety, self.sampling, self.batch, self.device, self.dtype = safety, sampling, batch, device, dtype
+
+    def __next__(self):
+        pose, _ = sample_holes(self.batch, self.safety, self.sampling, self.gen)
+        return pose.to(device=self.device, dtype=self.dtype), None
+
+
+def dataset_batches(pose: torch.Tensor, q: torch.Tensor | None, batch: int, seed: int) -> DatasetBatches:
+    return DatasetBatches(pose, q, batch, seed)
+
+
+def fresh_hole_batches(safety: SafetyModel, sampling: HoleSampling, batch: int, seed: int, device,
+                       dtype=torch.float32) -> FreshHoleBatches:
+    return FreshHoleBatches(safety, sampling, batch, seed, device, dtype)
 
 
 @dataclass
@@ -174,6 +227,16 @@ def pose_metrics(model: IKNet, boom: Boom, pose: torch.Tensor) -> dict[str, floa
     return {f"val_{k}_mm": 1000 * float(err[k].mean()) for k in ("start", "preview", "hole")}
 
 
+@dataclass
+class Checkpoints:
+    """How :func:`fit` saves its state: ``save(state)`` every ``every`` steps (0: never on a schedule)
+    and at a SIGTERM / SIGINT; ``resume``: a state saved by an earlier run of this same training."""
+
+    save: Callable[[dict], None]
+    every: int = 0
+    resume: dict | None = None
+
+
 def fit(
     model: IKNet,
     boom: Boom,
@@ -188,52 +251,197 @@ def fit(
     on_eval: Callable[[int, dict[str, float], float], None] | None = None,
     progress: bool = True,
     keep_best: bool = False,
+    checkpoints: Checkpoints | None = None,
 ) -> list[dict[str, float]]:
     """Adam with the linearly annealed learning rate of eq. 8; returns the logged history.
 
     ``on_eval(step, record, elapsed_s)`` runs at every held-out evaluation (live MLflow curves). A
     non-finite loss stops training at once with the step named: a NaN model must never be saved.
     ``keep_best``: the model ends with the weights of its best held-out hole-seeking error (early
-    stopping on held-out holes, never on the test groups); the history marks that step."""
+    stopping on held-out holes, never on the test groups); the history marks that step.
+    ``checkpoints``: save the state on a schedule and on SIGTERM / SIGINT (then raise as the signal
+    would), and start from ``checkpoints.resume`` if given; ``batches`` must then have ``state()`` and
+    ``load_state()`` (the batch sources of this module do)."""
     opt = torch.optim.Adam(model.parameters(), lr=lr)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda t: max(0.0, 1.0 - t / steps))
     history: list[dict[str, float]] = []
-    bar = tqdm(range(steps), desc=f"train {'sup' if objective.supervised else 'unsup'}", disable=not progress)
+    best = {"mm": math.inf, "step": None, "state": None}
+    start, elapsed0 = 0, 0.0
+    if checkpoints is not None and checkpoints.resume is not None:
+        start, elapsed0, history, best = restore_state(checkpoints.resume, model, opt, sched, batches, steps)
+    bar = tqdm(range(start, steps), initial=start, total=steps, disable=not progress,
+               desc=f"train {'sup' if objective.supervised else 'unsup'}")
     model.train()
-    t0 = time.perf_counter()
-    best_mm, best_state, best_step = math.inf, None, None
-    for step in bar:
-        raise_if_terminated()  # SIGTERM stops training at a step boundary even if its exception was swallowed
-        pose, q = next(batches)
-        terms = loss_terms(model, boom, safety, objective, pose, q)
-        if not torch.isfinite(terms["loss"]):
-            raise InputError(f"training diverged: loss = {float(terms['loss'].detach())} at step {step} "
-                             f"(terms {_finite_report(terms)}); check the data and train.lr = {lr}")
-        opt.zero_grad(set_to_none=True)
-        terms["loss"].backward()
-        if grad_clip:
-            torch.nn.utils.clip_grad_norm_(model.parameters(), grad_clip)
-        opt.step()
-        sched.step()
-        if step % eval_every == 0 or step == steps - 1:
-            model.eval()
-            record = {"lr": sched.get_last_lr()[0], **{k: float(v.detach()) for k, v in terms.items()}}
-            record.update(pose_metrics(model, boom, val_pose))
-            model.train()
-            elapsed = time.perf_counter() - t0
-            history.append({"step": step, "elapsed_s": elapsed, **record})
-            if keep_best and record["val_hole_mm"] < best_mm:
-                best_mm, best_step = record["val_hole_mm"], step
-                best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
-            bar.set_postfix(loss=f"{record['loss']:.3g}", hole_mm=f"{record['val_hole_mm']:.2f}")
-            if on_eval is not None:
-                on_eval(step, record, elapsed)
-    if best_state is not None:
-        model.load_state_dict(best_state)
+    t0 = time.perf_counter() - elapsed0
+
+    def snapshot(next_step: int) -> dict:
+        return training_state(next_step, steps, model, opt, sched, batches, history, best, time.perf_counter() - t0)
+
+    with _deferred_signals() as caught:
+        for step in bar:
+            if caught:  # a signal during the previous step: the state is consistent again here
+                _stop(caught, checkpoints, snapshot(step))
+            raise_if_terminated()  # SIGTERM stops training at a step boundary even if its exception was swallowed
+            pose, q = next(batches)
+            terms = loss_terms(model, boom, safety, objective, pose, q)
+            if not torch.isfinite(terms["loss"]):
+                raise InputError(f"training diverged: loss = {float(terms['loss'].detach())} at step {step} "
+                                 f"(terms {_finite_report(terms)}); check the data and train.lr = {lr}")
+            opt.zero_grad(set_to_none=True)
+            terms["loss"].backward()
+            if grad_clip:
+                torch.nn.utils.clip_grad_norm_(model.parameters(), grad_clip)
+            opt.step()
+            sched.step()
+            if step % eval_every == 0 or step == steps - 1:
+                model.eval()
+                record = {"lr": sched.get_last_lr()[0], **{k: float(v.detach()) for k, v in terms.items()}}
+                record.update(pose_metrics(model, boom, val_pose))
+                model.train()
+                elapsed = time.perf_counter() - t0
+                history.append({"step": step, "elapsed_s": elapsed, **record})
+                if keep_best and record["val_hole_mm"] < best["mm"]:
+                    best["mm"], best["step"] = record["val_hole_mm"], step
+                    best["state"] = {k: v.detach().clone() for k, v in model.state_dict().items()}
+                bar.set_postfix(loss=f"{record['loss']:.3g}", hole_mm=f"{record['val_hole_mm']:.2f}")
+                if on_eval is not None:
+                    on_eval(step, record, elapsed)
+            due = checkpoints is not None and checkpoints.every and (step + 1) % checkpoints.every == 0
+            if due and step + 1 < steps:
+                checkpoints.save(snapshot(step + 1))
+        if caught:  # a signal during the last step: the training is complete, save it as such and stop
+            _stop(caught, checkpoints, snapshot(steps))
+    if best["state"] is not None:
+        model.load_state_dict(best["state"])
         for rec in history:
-            rec["kept"] = float(rec["step"] == best_step)
+            rec["kept"] = int(rec["step"] == best["step"])
     model.eval()
     return history
+
+
+def _stop(caught: list[int], checkpoints: Checkpoints | None, state: dict) -> None:
+    """Save the state (if checkpointing) and stop as the first caught signal would have."""
+    if checkpoints is not None:
+        checkpoints.save(state)
+        log.warning("training stopped by %s at step %d; its checkpoint resumes it (train.resume=true)",
+                    signal.Signals(caught[0]).name, state["step"])
+    if caught[0] == signal.SIGINT:
+        raise KeyboardInterrupt("interrupted (SIGINT / Ctrl-C)")
+    raise Terminated(caught[0])
+
+
+@contextlib.contextmanager
+def _deferred_signals() -> Iterator[list[int]]:
+    """While inside, SIGTERM and SIGINT are noted (the yielded list) instead of raising mid-step, so the
+    loop can save a consistent state first; a second signal raises at once (a user who insists)."""
+    caught: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield caught
+        return
+
+    def handler(signum, _frame):
+        if caught:
+            raise KeyboardInterrupt("interrupted twice") if signum == signal.SIGINT else Terminated(signum)
+        caught.append(signum)
+
+    old = {s: signal.signal(s, handler) for s in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        yield caught
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+# ---------------------------------------------------------------------------------------- resume
+STATE_VERSION = 1
+
+
+def rng_states() -> dict:
+    """The torch (CPU and CUDA), numpy and Python generators' states, as tensors and plain lists
+    (a checkpoint must load with ``weights_only=True``)."""
+    kind, keys, pos, has_gauss, cached = np.random.get_state()
+    version, internal, gauss = random.getstate()
+    cuda = torch.cuda.get_rng_state_all() if torch.cuda.is_available() and torch.cuda.is_initialized() else []
+    return {"torch": torch.get_rng_state(), "cuda": cuda,
+            "numpy": {"kind": kind, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
+                      "has_gauss": int(has_gauss), "cached": float(cached)},
+            "python": [version, list(internal), gauss]}
+
+
+def set_rng_states(rng: Mapping) -> None:
+    torch.set_rng_state(rng["torch"])
+    if rng["cuda"] and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(rng["cuda"])
+    n = rng["numpy"]
+    np.random.set_state((n["kind"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached"]))
+    version, internal, gauss = rng["python"]
+    random.setstate((version, tuple(internal), gauss))
+
+
+def training_state(next_step: int, steps: int, model: IKNet, opt, sched, batches, history: list[dict],
+                   best: dict, elapsed_s: float) -> dict:
+    """Everything :func:`fit` needs to continue at ``next_step`` as if it had never stopped."""
+    if not hasattr(batches, "state"):
+        raise TypeError("checkpointing needs a batch source with state() / load_state() (dataset_batches, "
+                        "fresh_hole_batches)")
+    return {
+        "version": STATE_VERSION, "step": next_step, "steps": steps, "elapsed_s": elapsed_s,
+        "model": {k: v.detach().cpu().clone() for k, v in model.state_dict().items()},
+        # copies: Adam updates its moment tensors in place, and a state must not change after it is taken
+        "optimizer": copy.deepcopy(opt.state_dict()), "scheduler": copy.deepcopy(sched.state_dict()),
+        "rng": rng_states(),
+        "batches": batches.state(), "history": [dict(rec) for rec in history],
+        "best": {"mm": best["mm"], "step": best["step"],
+                 "state": None if best["state"] is None else {k: v.cpu() for k, v in best["state"].items()}},
+    }
+
+
+def restore_state(state: Mapping, model: IKNet, opt, sched, batches, steps: int):
+    """Load a :func:`training_state` into the live objects; returns (step, elapsed_s, history, best)."""
+    if state.get("version") != STATE_VERSION or state.get("steps") != steps:
+        raise InputError(f"resume state of another training (version {state.get('version')}, "
+                         f"{state.get('steps')} steps; this one: version {STATE_VERSION}, {steps} steps)")
+    device = next(model.parameters()).device
+    model.load_state_dict(state["model"])
+    opt.load_state_dict(state["optimizer"])
+    sched.load_state_dict(state["scheduler"])
+    batches.load_state(state["batches"])
+    set_rng_states(state["rng"])
+    best = dict(state["best"])
+    if best["state"] is not None:
+        best["state"] = {k: v.to(device) for k, v in best["state"].items()}
+    return int(state["step"]), float(state["elapsed_s"]), [dict(r) for r in state["history"]], best
+
+
+def training_digest(config: Mapping, files: Iterable[Path], code_root: Path | None = None) -> str:
+    """What makes two trainings the same: the settings they read, the MD5s of the files they read (as
+    DVC records them) and the pipeline's source code; a checkpoint resumes only a training with its digest."""
+    h = hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode())
+    for f in sorted(Path(p) for p in files):
+        h.update(f"{f.name}:{file_md5(f)}".encode())
+    root = code_root or Path(__file__).resolve().parents[1]
+    for f in sorted(root.rglob("*.py")):
+        h.update(f"{f.relative_to(root)}:{file_md5(f)}".encode())
+    return h.hexdigest()
+
+
+def save_training_state(path: Path, state: dict, digest: str, extra: Mapping | None = None) -> None:
+    atomic_write(path, lambda tmp: torch.save({**state, "digest": digest, **dict(extra or {})}, tmp))
+
+
+def load_training_state(path: Path, digest: str) -> dict | None:
+    """The saved state at ``path`` if it belongs to the training with ``digest``; else None (with why)."""
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except FileNotFoundError:
+        return None
+    except (pickle.UnpicklingError, EOFError, OSError, RuntimeError, zipfile.BadZipFile, ValueError) as exc:
+        log.warning("%s: not a readable resume checkpoint (%s); training from the start", path, exc)
+        return None
+    if not isinstance(state, dict) or state.get("digest") != digest:
+        log.warning("%s: a checkpoint of another config, data or code; training from the start", path)
+        return None
+    return state
 
 
 def _finite_report(terms: dict[str, torch.Tensor]) -> dict[str, float]:

@@ -5,8 +5,9 @@ Every stage logs through :func:`stage_run`, which is the one place that
 * prepares the store: an absolute URI (so Hydra job folders and DVC temporary copies share one
   store), the SQLite schema created under a file lock (parallel first runs never race), a fast,
   named failure when the store or artifact folder cannot be written;
-* tags the experiment ``mlflow.experimentKind = custom_model_development`` so MLflow 3's UI opens
-  on the runs, not on its GenAI overview;
+* tags the experiment ``mlflow.experimentKind = custom_model_development`` (MLflow 3.17's UI does not
+  read it: the runs table opens from :func:`pipeline.tracking.dashboard.runs_url`, whose
+  ``workflowType=machine_learning`` is what the UI reads);
 * marks RUNNING runs of dead processes on this host as KILLED (what SIGKILL leaves behind);
 * decides how a run ends: FINISHED, FAILED with the error as a tag, or KILLED on Ctrl-C / SIGTERM
   (the stage then exits with 128 + the signal number, as a killed process would).
@@ -23,6 +24,7 @@ import logging
 import math
 import os
 import socket
+import time
 import urllib.error
 import urllib.request
 import warnings
@@ -63,7 +65,9 @@ class TrackingSettings:
     experiment: str
     artifact_root: Path
     system_metrics: bool = False
-    register_models: bool = False  # trained networks into the Model Registry as <experiment>-<method>
+    register_models: bool = True  # trained networks into the Model Registry as <experiment>-<method>
+    ui_host: str = "127.0.0.1"  # python -m pipeline.dashboard: where the MLflow UI listens
+    ui_port: int = 5000
 
     @classmethod
     def from_config(cls, node: Mapping) -> TrackingSettings:
@@ -77,11 +81,16 @@ class TrackingSettings:
         system_metrics = node.get("system_metrics", False)
         if not isinstance(system_metrics, bool):
             raise ConfigError(f"tracking.system_metrics = {system_metrics!r}: expected true or false")
-        register = node.get("register_models", False)
+        register = node.get("register_models", True)
         if not isinstance(register, bool):
             raise ConfigError(f"tracking.register_models = {register!r}: expected true or false")
+        host, port = node.get("ui_host", "127.0.0.1"), node.get("ui_port", 5000)
+        if not isinstance(host, str) or not host.strip():
+            raise ConfigError(f"tracking.ui_host = {host!r}: expected a host name or address")
+        if isinstance(port, bool) or not isinstance(port, int) or not 0 < port < 65536:
+            raise ConfigError(f"tracking.ui_port = {port!r}: expected a port number (1-65535)")
         settings = cls(enabled, resolve_uri(node.get("uri")), experiment,
-                       root if root.is_absolute() else main_root() / root, system_metrics, register)
+                       root if root.is_absolute() else main_root() / root, system_metrics, register, host, port)
         if enabled:
             check_store(settings)  # with the other settings: before any data is read or run is opened
         return settings
@@ -181,10 +190,41 @@ def flatten(params: Mapping, prefix: str = "") -> dict[str, str]:
         if isinstance(value, Mapping):
             out.update(flatten(value, f"{name}."))
         elif isinstance(value, (list, tuple)):
-            out[name] = json.dumps(value)
+            out[name] = json.dumps([float(readable(v)) if isinstance(v, float) else v for v in value])
         else:
-            out[name] = str(value)
+            out[name] = readable(value)
     return out
+
+
+def select_params(cfg: Mapping, keys: list[str]) -> dict:
+    """The settings a stage reads, by dotted key (``["method", "train", "holes.face_x"]``), as one nested
+    dict: what a run logs as params, so a run holds its own settings and not every other stage's.
+    A key missing from ``cfg`` is an error (a stage that lists it reads it)."""
+    out: dict = {}
+    for key in keys:
+        node = cfg
+        for part in key.split("."):
+            if not isinstance(node, Mapping) or part not in node:
+                raise KeyError(f"select_params: no setting {key!r} in the config")
+            node = node[part]
+        *parents, last = key.split(".")
+        target = out
+        for part in parents:
+            target = target.setdefault(part, {})
+        target[last] = node
+    return out
+
+
+def readable(value, digits: int = 6) -> str:
+    """A param as a user reads it: floats to ``digits`` significant digits, integral floats as ints."""
+    if isinstance(value, float) and math.isfinite(value):
+        return str(int(value)) if value.is_integer() and abs(value) < 1e15 else f"{value:.{digits}g}"
+    return str(value)
+
+
+def round_metric(value: float, digits: int = 4) -> float:
+    """A summary value rounded to ``digits`` significant digits (the dashboard shows it as it is)."""
+    return float(f"{value:.{digits}g}") if math.isfinite(value) else value
 
 
 class StageRun:
@@ -201,7 +241,11 @@ class StageRun:
         if self.active:
             import mlflow
 
-            items = list(flatten(params).items())
+            logged = mlflow.tracking.MlflowClient().get_run(self.run_id).data.params  # a resumed run has some
+            changed = sorted(k for k, v in flatten(params).items() if k in logged and logged[k] != v)
+            if changed:  # MLflow refuses to change a param; only settings outside the resume digest can differ
+                log.warning("run %s keeps its first values of %s", self.run_id, changed)
+            items = [(k, v) for k, v in flatten(params).items() if k not in logged]
             for i in range(0, len(items), 100):  # MLflow takes at most 100 params a batch
                 mlflow.log_params(dict(items[i : i + 100]))
 
@@ -250,9 +294,10 @@ class StageRun:
                 mlflow.log_artifact(str(path), artifact_path=folder)
 
     def log_network(self, model, input_example, checkpoint: str | Path, name: str = "model", step: int = 0,
-                    registered_name: str | None = None) -> None:
+                    registered_name: str | None = None, alias: str = "newest"):
         """The trained network as an MLflow model named ``name`` at training step ``step`` (MLflow links
-        that step's metrics to it), optionally registered as ``registered_name``.
+        that step's metrics to it), optionally registered as ``registered_name`` with ``alias`` moved to
+        the new version (``models:/<registered_name>@newest``); returns MLflow's ``ModelInfo`` (or None).
 
         Never pickled: the model is a ``torch.export`` program (MLflow's ``pt2``, which loads without
         running code) and carries the project's weights-only checkpoint as an extra file, which is
@@ -260,13 +305,52 @@ class StageRun:
         if self.active:
             import mlflow.pytorch
 
-            mlflow.pytorch.log_model(model, name=name, input_example=input_example, pip_requirements=["torch"],
-                                     registered_model_name=registered_name, serialization_format="pt2",
-                                     extra_files=[str(checkpoint)], step=int(step))
+            info = mlflow.pytorch.log_model(model, name=name, input_example=input_example, pip_requirements=["torch"],
+                                            registered_model_name=registered_name, serialization_format="pt2",
+                                            extra_files=[str(checkpoint)], step=int(step))
+            if registered_name and info.registered_model_version is not None:
+                from mlflow.tracking import MlflowClient
 
-    def log_dataset(self, df, path: str | Path, context: str, digest: str | None = None) -> None:
+                MlflowClient().set_registered_model_alias(registered_name, alias, str(info.registered_model_version))
+            return info
+        return None
+
+    def log_summary(self, metrics: Mapping, step: int, model_id: str | None = None, dataset=None,
+                    prefix: str = "summary/", digits: int = 4) -> None:
+        """Single values of the run (``summary/val_hole_mm``), rounded for reading, at ``step``, linked to the
+        logged model ``model_id`` and evaluated on ``dataset`` (the model page then lists that dataset).
+        Logged after the curves; the ``summary/`` prefix puts them in a chart section of their own."""
+        if self.active:
+            import mlflow
+            from mlflow.entities import Metric
+
+            ts = int(time.time() * 1000)
+            ds_name, ds_digest = (dataset.name, dataset.digest) if dataset is not None else (None, None)
+            batch = [Metric(f"{prefix}{k}", round_metric(float(v), digits), ts, int(step), model_id=model_id,
+                            dataset_name=ds_name, dataset_digest=ds_digest, run_id=self.run_id)
+                     for k, v in metrics.items()
+                     if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)]
+            if batch:
+                mlflow.tracking.MlflowClient().log_batch(self.run_id, metrics=batch)
+
+    def log_frame_dataset(self, df, name: str, context: str):
+        """A table the run drew itself (no file), as an MLflow dataset whose digest is its values' MD5."""
+        if self.active:
+            import hashlib
+
+            import mlflow
+            import mlflow.data
+
+            digest = hashlib.md5(df.to_numpy().tobytes()).hexdigest()
+            ds = mlflow.data.from_pandas(df, name=name, digest=digest)
+            mlflow.log_input(ds, context=context)
+            return ds
+        return None
+
+    def log_dataset(self, df, path: str | Path, context: str, digest: str | None = None):
         """A table the run read, as an MLflow dataset input whose digest is the file's MD5, the hash
-        DVC records for it: the runs' Dataset column then names the same data version as dvc.lock."""
+        DVC records for it: the runs' Dataset column then names the same data version as dvc.lock.
+        Returns the MLflow dataset (to link metrics to it), or None with tracking off."""
         if self.active:
             import mlflow
             import mlflow.data
@@ -276,15 +360,18 @@ class StageRun:
                 warnings.filterwarnings("ignore", message="The specified dataset source can be interpreted")
                 ds = mlflow.data.from_pandas(df, source=str(path), name=path.name, digest=digest or file_md5(path))
             mlflow.log_input(ds, context=context)
+            return ds
+        return None
 
 
 @contextlib.contextmanager
 def stage_run(settings: TrackingSettings, run_name: str, tags: Mapping[str, str] | None = None,
-              system_metrics: bool = False) -> Iterator[StageRun]:
+              system_metrics: bool = False, resume_run_id: str | None = None) -> Iterator[StageRun]:
     """One MLflow run around a stage's work; how it ends is decided here and nowhere else.
 
     SIGTERM is turned into an interrupt for the duration, with tracking on or off, so that
-    temporary files of atomic writes are removed and the process exits with 128 + 15."""
+    temporary files of atomic writes are removed and the process exits with 128 + 15.
+    ``resume_run_id``: the run of an interrupted training that this one continues (see :func:`_start`)."""
     with terminate_as_interrupt():
         if not settings.enabled:
             try:
@@ -293,13 +380,10 @@ def stage_run(settings: TrackingSettings, run_name: str, tags: Mapping[str, str]
             except Terminated as exc:
                 raise SystemExit(128 + exc.signum) from exc
             return
-        import mlflow
-
         exp_id = prepare_store(settings)
         mark_stale_runs()
-        run = mlflow.start_run(experiment_id=exp_id, run_name=run_name,
-                               tags={**process_tags(), **dict(tags or {})},
-                               log_system_metrics=bool(system_metrics and settings.system_metrics))
+        run = _start(exp_id, run_name, {**process_tags(), **dict(tags or {})},
+                     bool(system_metrics and settings.system_metrics), resume_run_id)
         run_id = run.info.run_id
         try:
             yield StageRun(run_id)
@@ -315,6 +399,29 @@ def stage_run(settings: TrackingSettings, run_name: str, tags: Mapping[str, str]
             raise
         else:
             _end(run_id, "FINISHED", None)
+
+
+def _start(exp_id: str, run_name: str, tags: dict[str, str], system_metrics: bool, resume_run_id: str | None):
+    """A new run, or, for a resumed training, its interrupted run continued: the same run when this
+    store holds it in this experiment and it did not finish (its curves then go on where they
+    stopped), else a new run tagged ``resumed_from`` with the old id."""
+    import mlflow
+    from mlflow.exceptions import MlflowException
+    from mlflow.tracking import MlflowClient
+
+    if resume_run_id:
+        try:
+            old = MlflowClient().get_run(resume_run_id)
+        except MlflowException:
+            old = None
+        if (old is not None and old.info.experiment_id == exp_id and old.info.status != "FINISHED"
+                and old.info.lifecycle_stage == "active"):
+            if END_REASON in old.data.tags:  # it ends again, with its own reason
+                MlflowClient().delete_tag(resume_run_id, END_REASON)
+            return mlflow.start_run(run_id=resume_run_id, tags={**tags, "resumed": "true"},
+                                    log_system_metrics=system_metrics)
+        tags = {**tags, "resumed_from": resume_run_id}
+    return mlflow.start_run(experiment_id=exp_id, run_name=run_name, tags=tags, log_system_metrics=system_metrics)
 
 
 def _end(run_id: str, status: str, reason: str | None) -> None:

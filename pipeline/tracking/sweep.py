@@ -91,7 +91,7 @@ def runs_from_job_files(folder: Path) -> pd.DataFrame:
     for path in sorted(folder.glob("*/*_final.json")):
         final = json.loads(path.read_text())
         rows.append({"run_id": path.parent.name, "tags.sweep.overrides": final.get("overrides", ""),
-                     "status": "FINISHED", **{f"metrics.final_{k}": v for k, v in final.items()
+                     "status": "FINISHED", **{f"metrics.summary/{k}": v for k, v in final.items()
                                               if isinstance(v, (int, float))}})
     for path in sorted(folder.glob(f"*/{JOB_FAILED_FILE}")):
         failed = json.loads(path.read_text())
@@ -132,7 +132,7 @@ class MlflowSweepCallback(Callback):
 
             settings = TrackingSettings.from_config(config.tracking)
             exp_id = prepare_store(settings)
-            mark_stale_runs(exp_id)
+            mark_stale_runs()
             client = MlflowClient(settings.uri)
             sweep = " ".join(config.hydra.overrides.task)
             run = client.create_run(exp_id, run_name=f"sweep {sweep}"[:250],

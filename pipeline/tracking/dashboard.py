@@ -1,0 +1,73 @@
+"""The MLflow dashboard on the project's store, opening on an experiment's runs table.
+
+MLflow 3.17's UI does not read the ``mlflow.experimentKind`` tag: an experiment page shows its GenAI
+overview unless the URL says ``workflowType=machine_learning`` (or the browser's localStorage key
+``mlflow.workflowType`` does), as its bundle reads it (``e.get("workflowType")``). So the URL to give
+is :func:`runs_url`'s, the runs route with that parameter.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+
+from pipeline.tracking.runs import TrackingSettings, prepare_store
+
+
+def runs_url(base: str, experiment_id: str) -> str:
+    """The page of ``experiment_id``'s runs table on the UI at ``base`` (``http://127.0.0.1:5000``)."""
+    return f"{base.rstrip('/')}/#/experiments/{experiment_id}/runs?workflowType=machine_learning"
+
+
+def ui_command(settings: TrackingSettings, host: str, port: int) -> list[str]:
+    """``mlflow ui`` on the store (one worker: the reference machine has 2 cores)."""
+    return [sys.executable, "-m", "mlflow", "ui", "--backend-store-uri", settings.uri,
+            "--default-artifact-root", settings.artifact_root.as_uri(), "--host", host, "--port", str(port),
+            "--workers", "1"]
+
+
+def wait_until_up(base: str, timeout_s: float = 120.0, proc: subprocess.Popen | None = None) -> None:
+    """Block until the UI at ``base`` answers its health check (or its process ends, or time runs out)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if proc is not None and proc.poll() is not None:
+            raise RuntimeError(f"mlflow ui exited with status {proc.returncode} before answering at {base}")
+        try:
+            urllib.request.urlopen(f"{base}/health", timeout=2).close()
+            return
+        except (urllib.error.URLError, OSError):
+            time.sleep(0.5)
+    raise TimeoutError(f"no MLflow UI answered at {base} within {timeout_s:.0f} s")
+
+
+def start(settings: TrackingSettings) -> tuple[subprocess.Popen | None, str]:
+    """Start the UI on the store (none for an MLflow server URI: it is its own UI) and return it with
+    the URL of the configured experiment's runs table; the experiment is created if missing."""
+    exp_id = prepare_store(settings)
+    if settings.uri.startswith(("http://", "https://")):
+        return None, runs_url(settings.uri, exp_id)
+    base = f"http://{settings.ui_host}:{settings.ui_port}"
+    # its own process group: mlflow ui runs its web server as a child, and stop() ends both
+    proc = subprocess.Popen(ui_command(settings, settings.ui_host, settings.ui_port), start_new_session=True)
+    try:
+        wait_until_up(base, proc=proc)
+    except BaseException:
+        stop(proc)
+        raise
+    return proc, runs_url(base, exp_id)
+
+
+def stop(proc: subprocess.Popen, timeout_s: float = 30.0) -> None:
+    """End the UI started by :func:`start` and its web server (SIGTERM to its group, SIGKILL if it lingers)."""
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()

@@ -1,0 +1,94 @@
+"""The dashboard: the URL that opens MLflow 3.17 on the runs table, and (opt-in, with chromium) a real
+headless browser showing that table on a fresh profile, where the experiment's plain page shows GenAI."""
+
+import importlib.util
+import shutil
+import sys
+from pathlib import Path
+
+import pytest
+
+from pipeline.tracking.dashboard import runs_url, ui_command
+from pipeline.tracking.runs import TrackingSettings, stage_run
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "check_dashboard.py"
+
+
+def load_script():
+    spec = importlib.util.spec_from_file_location("check_dashboard_script", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_runs_url_is_the_runs_route_with_the_workflow_type():
+    assert runs_url("http://127.0.0.1:5000/", "7") == \
+        "http://127.0.0.1:5000/#/experiments/7/runs?workflowType=machine_learning"
+
+
+def test_the_ui_serves_the_configured_store(tmp_path):
+    s = TrackingSettings.from_config({"enabled": False, "uri": f"sqlite:///{tmp_path}/m.db", "experiment": "e",
+                                      "artifact_root": str(tmp_path / "art"), "ui_port": 5123})
+    cmd = ui_command(s, s.ui_host, s.ui_port)
+    assert cmd[cmd.index("--backend-store-uri") + 1] == f"sqlite:///{tmp_path}/m.db"
+    assert cmd[cmd.index("--port") + 1] == "5123" and cmd[cmd.index("--host") + 1] == "127.0.0.1"
+
+
+@pytest.mark.parametrize("port", [0, 70000, "x", True])
+def test_a_bad_port_is_named(tmp_path, port):
+    from pipeline.core.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="tracking.ui_port"):
+        TrackingSettings.from_config({"enabled": False, "experiment": "e", "ui_port": port})
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("chromium") is None, reason="needs chromium (apt-get install -y chromium)")
+def test_a_headless_browser_lands_on_the_runs_table(tmp_path):
+    check_dashboard = load_script()
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    settings = TrackingSettings.from_config({"enabled": True, "uri": uri, "experiment": "boom-ik-quick",
+                                             "artifact_root": str(tmp_path / "art")})
+    for name in ("train-cuikm", "evaluate"):
+        with stage_run(settings, name, {"stage": name}) as run:
+            run.log_metrics({"val_hole_mm": 3.0}, step=0)
+    report = check_dashboard.check(["experiment=quick", f"tracking.uri={uri}",
+                                    f"tracking.artifact_root={tmp_path / 'art'}"])
+    assert report["ok"], report
+    assert report["run_names_shown"] == ["evaluate", "train-cuikm"]
+    assert report["genai_on_plain_url"] and not report["runs_table_on_plain_url"]  # what a plain URL gives
+
+
+def _dvc() -> str | None:
+    local = Path(sys.executable).with_name("dvc")
+    return str(local) if local.is_file() else shutil.which("dvc")
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("chromium") is None or _dvc() is None, reason="needs chromium and dvc")
+def test_dvc_plots_render_offline_with_the_project_template(tmp_path):
+    """The project's plots section, template and page in a scratch DVC repo: all four charts draw in a
+    browser that cannot reach any host, each method in its own colour on a log axis."""
+    import yaml
+
+    root = Path(__file__).resolve().parents[1]
+    repo = tmp_path / "repo"
+    shutil.copytree(root / ".dvc" / "plots", repo / ".dvc" / "plots")
+    shutil.copy(root / ".dvc" / "config", repo / ".dvc" / "config")
+    plots = yaml.safe_load((root / "dvc.yaml").read_text())["plots"]
+    (repo / "dvc.yaml").write_text(yaml.safe_dump({"plots": plots}))
+    (repo / "params.yaml").write_text("paths:\n  data: data\n")
+    (repo / "data" / "models").mkdir(parents=True)
+    for k, m in enumerate(["sikm", "sikm_best", "uikm", "cuikm"]):
+        rows = [f"{s},{1000 / (s + 1) + k},{2.0 / (s + 1)},{900 / (s + 1)},{800 / (s + 1)}" for s in (0, 50, 100, 149)]
+        (repo / "data" / "models" / f"{m}_history.csv").write_text(
+            "step,val_hole_mm,loss,val_start_mm,val_preview_mm\n" + "\n".join(rows) + "\n")
+    script = importlib.util.spec_from_file_location("check_plots_offline", SCRIPT.with_name("check_plots_offline.py"))
+    sys.path.insert(0, str(SCRIPT.parent))
+    module = importlib.util.module_from_spec(script)
+    script.loader.exec_module(module)
+    page = module.render(repo, _dvc())
+    spec = page.read_text()
+    assert '"type": "log"' in spec and "regexp('^.*/|_history[.]csv$', 'g')" in spec
+    report = module.check(page)
+    assert report == {**report, "plots": 4, "drawn": 4, "cdn_scripts": 0, "ok": True}
