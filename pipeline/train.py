@@ -9,7 +9,7 @@ written in a private folder first, logged to MLflow from there, and only then mo
 together: what a run logged is always its own model, whatever other trainings run beside it.
 
 The training's private folder ``.<method>.run-<digest>/`` (the digest of its settings, data and code)
-holds its resume state ``resume.pt``, written every ``train.checkpoint_every`` steps and on SIGTERM /
+holds its resume state ``resume.pt``, written every ``runtime.checkpoint_every`` steps and on SIGTERM /
 SIGINT and logged to the run as ``checkpoints/resume.pt``; with ``train.resume=true`` (the default) a
 training with that digest continues from it, in the same MLflow run, to the weights an uninterrupted
 training gives. The folder is removed when the training's files are published.
@@ -61,8 +61,9 @@ RESUME_FILE = "resume.pt"
 # What a training reads, and so what its run logs as params (not the other stages' settings).
 PARAM_KEYS = ["model", "train", "holes.face_x", "holes.cone_deg", "holes.inset", "safety", "tunnel", "boom", "device",
               "runtime"]
-# Settings that change how a training runs, not what it computes: outside its resume digest.
-NOT_IN_DIGEST = {"runtime": None, "train": ("resume", "checkpoint_every")}
+# Settings that change how a training runs, not what it computes (threads, progress, checkpoint interval,
+# resume itself): outside its resume digest.
+NOT_IN_DIGEST = ("runtime",)
 
 
 def run(cfg: DictConfig) -> dict:
@@ -88,7 +89,7 @@ def run(cfg: DictConfig) -> dict:
                **select_params(as_dict(cfg), PARAM_KEYS)}
     digest = training_digest(_digest_config(run_cfg, str(device)), [path for path, _ in data.files.values()])
     run_dir = models_dir / f".{method.name}.run-{digest[:12]}"  # private to this training (config, data, code)
-    resume = load_training_state(run_dir / RESUME_FILE, digest) if settings.resume else None
+    resume = load_training_state(run_dir / RESUME_FILE, digest) if runtime.resume else None
     tags = {"stage": "train", "method": method.name, "train.digest": digest, **sweep.child_tags()}
     with stage_run(tracking, f"train-{method.name}", tags, system_metrics=True,
                    resume_run_id=resume and resume.get("mlflow_run_id")) as mlrun:
@@ -114,7 +115,7 @@ def run(cfg: DictConfig) -> dict:
                       settings.grad_clip, progress=runtime.progress, keep_best=settings.keep_best,
                       on_eval=lambda step, rec, elapsed: log_training_progress(
                           mlrun, step, settings.steps, rec, elapsed, method.name, echo=not runtime.progress),
-                      checkpoints=Checkpoints(save_state, settings.checkpoint_every, resume))
+                      checkpoints=Checkpoints(save_state, runtime.checkpoint_every, resume))
         model = model.cpu()
         train_s = time.perf_counter() - t0 + (resume["elapsed_s"] if resume else 0.0)
         final = final_metrics(model, data.val_pose.float(), lambda p, q: summarize(solution_table(p, q, safety)),
@@ -129,9 +130,7 @@ def run(cfg: DictConfig) -> dict:
 
 
 def _digest_config(run_cfg: dict, device: str) -> dict:
-    out = {k: v for k, v in run_cfg.items() if k not in NOT_IN_DIGEST or NOT_IN_DIGEST[k]}
-    out["train"] = {k: v for k, v in out["train"].items() if k not in NOT_IN_DIGEST["train"]}
-    return {**out, "device": device}
+    return {**{k: v for k, v in run_cfg.items() if k not in NOT_IN_DIGEST}, "device": device}
 
 
 def save_outputs(model: IKNet, history: list[dict], final: dict, models_dir: Path, run_dir: Path, name: str,

@@ -22,7 +22,7 @@ from pipeline.learning.training import (
     training_digest,
 )
 
-STEPS = ("train.checkpoint_every=40",)  # quick: 150 steps, held-out evaluations at 0, 50, 100, 149
+STEPS = ("runtime.checkpoint_every=40",)  # tiny (as quick): 150 steps, held-out evaluations at 0, 50, 100, 149
 
 
 def _weights(path):
@@ -55,7 +55,7 @@ def study(tmp_path_factory, make_cfg):
 
 def _runs(tmp):
     client = MlflowClient(f"sqlite:///{tmp}/mlflow.db")
-    exp = client.get_experiment_by_name("boom-ik-quick")
+    exp = client.get_experiment_by_name("boom-ik-tiny")  # the experiment of conf/experiment/tiny.yaml
     return client, client.search_runs([exp.experiment_id], "tags.stage = 'train'", order_by=["start_time ASC"])
 
 
@@ -117,7 +117,7 @@ def test_another_config_does_not_resume_and_resume_false_starts_over(study, make
     assert _same(_weights(tmp / "data" / "models" / "cuikm.pt"), reference)
     assert other.is_dir()
     client, before = _runs(tmp)
-    train.run(make_cfg(tmp, *STEPS, "train.lr=2e-3", "train.resume=false"))  # from step 0, a new run
+    train.run(make_cfg(tmp, *STEPS, "train.lr=2e-3", "runtime.resume=false"))  # from step 0, a new run
     client, after = _runs(tmp)
     assert len(after) == len(before) + 1 and "resumed_at_step" not in after[-1].data.tags
     assert client.get_run(before[-2].info.run_id).info.status == "KILLED"  # the interrupted one stays as it was
@@ -128,10 +128,10 @@ def test_another_config_does_not_resume_and_resume_false_starts_over(study, make
 def test_the_logged_network_is_registered_at_its_kept_step(study, make_cfg):
     tmp, _, done = study
     client = MlflowClient(f"sqlite:///{tmp}/mlflow.db")
-    newest = client.get_model_version_by_alias("boom-ik-quick-cuikm", "newest")
+    newest = client.get_model_version_by_alias("boom-ik-tiny-cuikm", "newest")
     assert int(newest.version) == max(int(v.version) for v in client.search_model_versions(
-        "name = 'boom-ik-quick-cuikm'"))
-    net, meta = load_network("models:/boom-ik-quick-cuikm@newest", None, f"sqlite:///{tmp}/mlflow.db")
+        "name = 'boom-ik-tiny-cuikm'"))
+    net, meta = load_network("models:/boom-ik-tiny-cuikm@newest", None, f"sqlite:///{tmp}/mlflow.db")
     assert meta["mlflow_run_id"] == newest.run_id
     published, published_meta = load_checkpoint(tmp / "data" / "models" / "cuikm.pt")  # the last training's
     assert published_meta["mlflow_run_id"] == newest.run_id and _same(net.state_dict(), published.state_dict())

@@ -146,6 +146,8 @@ class RuntimeSettings:
     calibrate_threads: int | None = dataclasses.field(default=1, metadata=rule(ge=1))
     progress: bool = True  # train's tqdm bar
     log_model: bool = True  # train: the network logged as an MLflow model
+    checkpoint_every: int = dataclasses.field(default=1000, metadata=rule(ge=0))  # train: steps between resume states
+    resume: bool = True  # train: continue an interrupted training of the same settings, data and code (same weights)
 
     @classmethod
     def from_config(cls, cfg: Mapping) -> RuntimeSettings:

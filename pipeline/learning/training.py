@@ -63,8 +63,6 @@ class TrainSettings:
     grad_clip: float | None = field(default=None, metadata=rule(gt=0))
     method_key: str = "method"
     keep_best: bool = True  # end with the weights of the best held-out evaluation, not the last step's
-    checkpoint_every: int = field(default=1000, metadata=rule(ge=0))  # steps between resume states (0: signals only)
-    resume: bool = True  # continue an interrupted training of the same config, data and code from its state
 
     @classmethod
     def from_config(cls, node: Mapping) -> TrainSettings:
@@ -323,7 +321,7 @@ def _stop(caught: list[int], checkpoints: Checkpoints | None, state: dict) -> No
     """Save the state (if checkpointing) and stop as the first caught signal would have."""
     if checkpoints is not None:
         checkpoints.save(state)
-        log.warning("training stopped by %s at step %d; its checkpoint resumes it (train.resume=true)",
+        log.warning("training stopped by %s at step %d; its checkpoint resumes it (runtime.resume=true)",
                     signal.Signals(caught[0]).name, state["step"])
     if caught[0] == signal.SIGINT:
         raise KeyboardInterrupt("interrupted (SIGINT / Ctrl-C)")
