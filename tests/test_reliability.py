@@ -30,8 +30,8 @@ from pipeline.data.hole_sets import read_hole_table
 from pipeline.learning.models import load_checkpoint
 from pipeline.tracking.runs import TrackingSettings, round_metric, stage_run
 
-# the runs' bookkeeping is under test here, not what they learn: a few steps, no MLflow model
-SHORT = ["train.steps=20", "train.eval_every=10", "runtime.log_model=false"]
+# the runs' bookkeeping is under test here, not what they learn: a few small steps, no MLflow model
+SHORT = ["train.steps=20", "train.eval_every=10", "train.batch_size=64", "runtime.log_model=false"]
 
 
 def _env():
