@@ -9,9 +9,12 @@ solves every hole with the hybrid solver (:mod:`pipeline.solvers.hybrid`), and w
 ``<plan stem>_solution.csv`` beside the plan (or ``out``): per hole the joints (rad, m), start,
 preview and hole-seeking error (mm), the four clearances (m), ``status`` (ok, inexact, unsafe,
 unreachable; invalid for unreadable rows) and ``method``; plus ``<stem>_solution.png`` (the face by
-status and the boom where it matters) and ``<stem>_solution.json`` (counts and timing). Logs an
-MLflow run. With ``strict=true`` it exits with status 1 unless every hole is ok. The hybrid's settings
-are the ``solver`` group (conf/solver/hybrid.yaml).
+status and the boom where it matters) and ``<stem>_solution.json`` (counts, timing, the IREDES
+checksum state, the set's MD5s). Rows stay in the plan's order, invalid ones in place. ``out`` is
+checked before any work and the three files are published as one set (:mod:`pipeline.plans.output`);
+the plan is solved in chunks (:mod:`pipeline.plans.chunks`). Logs an MLflow run. With ``strict=true``
+it exits with status 1 unless every hole is ok. The hybrid's settings are the ``solver`` group
+(conf/solver/hybrid.yaml).
 """
 
 from __future__ import annotations
