@@ -9,9 +9,12 @@ solves every hole with the hybrid solver (:mod:`pipeline.solvers.hybrid`), and w
 ``<plan stem>_solution.csv`` beside the plan (or ``out``): per hole the joints (rad, m), start,
 preview and hole-seeking error (mm), the four clearances (m), ``status`` (ok, inexact, unsafe,
 unreachable; invalid for unreadable rows) and ``method``; plus ``<stem>_solution.png`` (the face by
-status and the boom where it matters) and ``<stem>_solution.json`` (counts and timing). Logs an
-MLflow run. With ``strict=true`` it exits with status 1 unless every hole is ok. The hybrid's settings
-are the ``solver`` group (conf/solver/hybrid.yaml).
+status and the boom where it matters) and ``<stem>_solution.json`` (counts, timing, the IREDES
+checksum state, the set's MD5s). Rows stay in the plan's order, invalid ones in place. ``out`` is
+checked before any work and the three files are published as one set (:mod:`pipeline.plans.output`);
+the plan is solved in chunks (:mod:`pipeline.plans.chunks`). Logs an MLflow run. With ``strict=true``
+it exits with status 1 unless every hole is ok. The hybrid's settings are the ``solver`` group
+(conf/solver/hybrid.yaml).
 """
 
 from __future__ import annotations
@@ -27,19 +30,24 @@ from omegaconf import DictConfig, OmegaConf
 from pipeline.assembly.build import build_safety, load_boom
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import configure_process
-from pipeline.core.io import require_writable, save_figure, write_csv, write_json
+from pipeline.core.io import require_writable
 from pipeline.core.settings import RuntimeSettings, coerce, parse, rule
 from pipeline.data.holes import joint_box
 from pipeline.evaluation.plots import solution_figure
 from pipeline.learning.network_source import load_network
+from pipeline.plans.chunks import solve_in_chunks
+from pipeline.plans.iredes import MAX_TEXT
 from pipeline.plans.model import COLLAR
-from pipeline.plans.read import read_plan
+from pipeline.plans.output import solution_paths, write_solution_set
+from pipeline.plans.read import MAX_PLAN_MB, read_plan
 from pipeline.plans.solutions import CLEARANCE_COLUMNS, solution_frame, status_counts
-from pipeline.solvers.base import HoleTargets, NetworkSolver
+from pipeline.solvers.base import NetworkSolver
 from pipeline.solvers.hybrid import HybridSettings, HybridSolver
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
+
+LOGGED_TABLE_ROWS = 20_000
 
 
 @dataclass(frozen=True)
@@ -50,6 +58,7 @@ class IredesSettings:
     unit: str = "m"
     origin: tuple[float, ...] = (0.0, 0.0, 0.0)
     checksum: str = field(default="refuse", metadata=rule(choices=("refuse", "warn", "ignore")))
+    max_text: int = field(default=MAX_TEXT, metadata=rule(ge=1))
 
 
 @dataclass(frozen=True)
@@ -60,6 +69,9 @@ class SolveSettings:
     model_uri: str | None = None
     figure: bool = True
     max_boom_views: int = field(default=6, metadata=rule(ge=0))
+    chunk: int = field(default=2048, metadata=rule(ge=1))  # holes solved at a time: bounds memory, not the plan
+    progress: bool = True
+    max_plan_mb: float = field(default=MAX_PLAN_MB, metadata=rule(gt=0))
     iredes: IredesSettings = field(default_factory=IredesSettings)
 
 
@@ -68,44 +80,51 @@ def run(cfg: DictConfig) -> dict:
     hybrid = parse(HybridSettings, cfg.solver, "solver")
     tracking = TrackingSettings.from_config(cfg.tracking)
     plan_path = project_path(coerce(cfg.plan, "str", "plan"))
-    out = project_path(cfg.out) if cfg.get("out") else plan_path.with_name(f"{plan_path.stem}_solution.csv")
+    # Before any work: never the plan itself, never colliding names, never a folder (pipeline/plans/output.py).
+    paths = solution_paths(plan_path, project_path(cfg.out) if cfg.get("out") else None)
+    out = paths.csv
+    require_writable(out.parent, "out (its folder)")
     strict = coerce(cfg.get("strict", False), "bool", "strict")
     boom = load_solve_boom(cfg.boom, cfg.get("boom_model"))
     safety = build_safety(boom, cfg.tunnel, cfg.safety)
+    iredes = asdict(settings.iredes) if plan_path.suffix.lower() == ".xml" else {}
+    plan = read_plan(plan_path, settings.max_plan_mb, **iredes)  # a bad plan fails before the network loads
     source = settings.model_uri or project_path(cfg.paths.data) / "models" / f"{settings.network}.pt"
     network, _ = load_network(source, boom, tracking.uri, "solve.model_uri")
-    plan = read_plan(plan_path, **(asdict(settings.iredes) if plan_path.suffix.lower() == ".xml" else {}))
-    require_writable(out.parent, "out (its folder)")
     for line in plan.report():
         log.warning("skipped: %s", line)
     method = f"hybrid ({settings.model_uri or settings.network})"
-    with stage_run(tracking, f"solve-{plan_path.stem}", {"stage": "solve", "plan": str(plan_path)}) as mlrun:
+    with stage_run(tracking, f"solve-{plan_path.stem}", {"stage": "solve", "plan": str(plan_path),
+                                                         "plan_checksum": plan.checksum}) as mlrun:
         mlrun.log_params({"plan": str(plan_path), "solve": OmegaConf.to_container(cfg.solve, resolve=True),
-                          "solver": as_dict(cfg.solver), "boom_model": str(cfg.get("boom_model"))})
+                          "solver": as_dict(cfg.solver), "boom_model": str(cfg.get("boom_model")),
+                          "plan_checksum": plan.checksum})
         mlrun.log_dataset(plan.holes, plan_path, "drill plan")
         box = cfg.holes.sup.get("box")  # random starts within the working box
         solver = HybridSolver(boom, safety, NetworkSolver(boom, network, settings.network), hybrid, "hybrid",
                               joint_box(boom, None if box is None else as_dict(box)))
-        result = solver.solve(HoleTargets(plan.poses(boom.preview_depth), boom.preview_depth))
+        result = solve_in_chunks(solver, plan.poses(boom.preview_depth), boom.preview_depth, settings.chunk,
+                                 settings.progress)
         table = solution_frame(plan, result, boom.joint_names, method)
         summary = {"holes": len(plan), "invalid_rows": invalid_rows(plan), **status_counts(table),
-                   "hole_mm_max": float(table["hole_mm"].max()), "solve_s": result.wall_s,
+                   "hole_mm_max": float(np.nanmax(table["hole_mm"].to_numpy(dtype=float))), "solve_s": result.wall_s,
                    "ms_per_hole": 1000 * result.wall_s / len(plan)}
-        write_csv(table, out)
-        write_json({"plan": str(plan_path), "method": method, **summary}, out.with_suffix(".json"))
         mlrun.log_metrics(summary)
-        mlrun.log_table(table, "solution.json")
-        mlrun.log_artifact(out)
-        if settings.figure:
-            fig = solution_figure(table, plan.holes[COLLAR].to_numpy(), safety.tunnel,
-                                  boom_views(table, result.q, safety, settings.max_boom_views), safety.distances.wall)
-            save_figure(fig, out.with_suffix(".png"))
+        if len(table) <= LOGGED_TABLE_ROWS:  # MLflow's table view holds the whole table in memory as JSON
+            mlrun.log_table(table, "solution.json")
+        fig = (solution_figure(table, plan.holes[COLLAR].to_numpy(), safety.tunnel,
+                               boom_views(table, result.q, safety, settings.max_boom_views), safety.distances.wall)
+               if settings.figure else None)
+        if fig is not None:
             mlrun.log_figure(fig, "solution.png")
+        record = {"plan": str(plan_path), "method": method, "checksum": plan.checksum,
+                  "checksum_detail": plan.checksum_detail, **summary}
+        write_solution_set(paths, table, record, fig, lambda staged: mlrun.log_artifact(staged["csv"]))
     log.info("solved %d holes in %.2f s (%.3f ms/hole): %s -> %s", len(plan), result.wall_s, summary["ms_per_hole"],
              status_counts(table), out)
     if strict and summary["ok"] != len(table):
         raise SystemExit(f"strict: {len(table) - summary['ok']} of {len(table)} holes are not ok (see {out})")
-    return summary
+    return {**summary, "checksum": plan.checksum}
 
 
 def load_solve_boom(boom_cfg, boom_model):

@@ -179,7 +179,8 @@ def test_iredes_row_problems_name_the_hole_line(tmp_path):
         _hole("H7", (6.5, -0.6, 1.5), (10, -0.6, 1.5), kind="cut"),
     ]
     (tmp_path / "p.xml").write_text(_iredes(holes))
-    plan = read_iredes_plan(tmp_path / "p.xml")
+    plan = read_iredes_plan(tmp_path / "p.xml", checksum="warn")  # no trailer: unverified
+    assert plan.checksum == "unverified"
     assert plan.holes["hole_id"].tolist() == ["H1", "H7"] and plan.holes["hole_type"].tolist() == ["stoping", "cut"]
     assert (plan.plan_id, plan.name) == ("P7", "Face 7")
     got = [(p.row, p.hole_id, p.column) for p in plan.problems]
@@ -306,3 +307,104 @@ def test_hole_poses_put_the_preview_point_d_along_the_hole(demo):
     with pytest.raises(ConfigError, match="preview depth"):
         hole_poses(demo, 0.0)
     assert isinstance(demo, DrillPlan) and torch.equal(demo.poses(3.3), P)
+
+
+# --- hostile files (issue 18): every one built here -------------------------------------------
+
+
+def _moved(demo, tmp_path, name="face.xml"):
+    """The demo face as IREDES with the first collar moved by 1 m (the attack the checksum must catch)."""
+    holes = demo.holes.copy()
+    holes.loc[0, "collar_y"] += 1.0
+    return iredes_bytes(holes, created=STAMP, checksum=None), tmp_path / name
+
+
+def _trailer(data: bytes, chksum: str) -> bytes:
+    return data.replace(b"</DRPPlan>", f"  <IR:GenTrailer><IR:ChkSum>{chksum}</IR:ChkSum></IR:GenTrailer>\n"
+                        "</DRPPlan>".encode())
+
+
+@pytest.mark.parametrize("attack", ["no trailer", "chksum 0", "utf-16", "chksum in a comment", "chksum empty"])
+def test_an_iredes_plan_that_cannot_be_verified_is_refused_and_warn_records_it(demo, tmp_path, attack, caplog):
+    data, path = _moved(demo, tmp_path)
+    if attack == "chksum 0":
+        data = _trailer(data, "0")
+    elif attack == "chksum empty":
+        data = _trailer(data, "")
+    elif attack == "utf-16":
+        crc = file_crc32(_trailer(data, "0"))[0]  # a valid checksum of the UTF-8 file ...
+        data = _trailer(data, str(crc)).decode().replace('encoding="UTF-8"', 'encoding="UTF-16"').encode("utf-16")
+    elif attack == "chksum in a comment":
+        data = data.replace(b"</DRPPlan>", b"<!-- <IR:GenTrailer><IR:ChkSum>0</IR:ChkSum></IR:GenTrailer> -->"
+                            b"\n</DRPPlan>")
+    path.write_bytes(data)
+    with pytest.raises(InputError, match=r"face.xml: .*refused \(solve.iredes.checksum=refuse\)"):
+        read_iredes_plan(path)
+    with caplog.at_level(logging.WARNING, logger="pipeline.plans.iredes"):
+        plan = read_iredes_plan(path, checksum="warn")
+    assert plan.checksum == "unverified" and "unverified" in caplog.text and len(plan) == len(demo)
+    assert read_iredes_plan(path, checksum="ignore").checksum == "ignored"
+
+
+def test_a_real_chksum_beside_a_commented_one_is_the_one_checked(demo, tmp_path):
+    path = tmp_path / "face.xml"
+    data = iredes_bytes(demo, created=STAMP).replace(b"<IR:PlanId>", b"<!-- <IR:ChkSum>1</IR:ChkSum> --><IR:PlanId>")
+    crc, stored = file_crc32(data)
+    data = data.replace(f"<IR:ChkSum>{stored}<".encode(), b"<IR:ChkSum>0<")
+    path.write_bytes(data.replace(b"<IR:ChkSum>0<", f"<IR:ChkSum>{file_crc32(data)[0]}<".encode()))
+    assert read_iredes_plan(path).checksum == "verified"
+    assert read_csv_plan_of(demo, tmp_path).checksum == "not applicable"
+
+
+def read_csv_plan_of(demo, tmp_path):
+    write_csv_plan(demo, tmp_path / "face.csv")
+    return read_csv_plan(tmp_path / "face.csv")
+
+
+def test_a_huge_text_node_or_file_is_refused_with_a_clear_message(demo, tmp_path):
+    path = tmp_path / "big.xml"
+    data = iredes_bytes(demo, created=STAMP, checksum=None)
+    path.write_bytes(data.replace(b"<IR:PlanName>", b"<IR:PlanName>" + b"x" * 100_000, 1))
+    line = data[: data.index(b"<IR:PlanName>")].count(b"\n") + 1
+    with pytest.raises(InputError, match=rf"big.xml: line {line}: a text node in <PlanName> is longer than 65536"):
+        read_iredes_plan(path, checksum="ignore")
+    path.write_bytes(data)
+    with pytest.raises(InputError, match=r"big.xml: .* MB, over solve.max_plan_mb = 0.001 MB"):
+        read_plan(path, max_mb=0.001, checksum="ignore")
+
+
+@pytest.mark.parametrize("huge", ["1e154", "1e200", "1.7e308", "-1e300"])
+def test_one_row_with_huge_finite_coordinates_is_a_row_problem(tmp_path, huge):
+    rows = ["A1,6.5,0.1,1.5,10,0.1,1.5,cut", f"A2,{huge},0.2,1.5,10,0.2,1.5,cut", "A3,6.5,0.3,1.5,10,0.3,1.5,cut"]
+    (tmp_path / "p.csv").write_text("\n".join([HEADER, *rows]) + "\n")
+    plan = read_csv_plan(tmp_path / "p.csv")
+    assert plan.holes["hole_id"].tolist() == ["A1", "A3"]
+    (p,) = plan.problems
+    assert (p.row, p.hole_id, p.column) == (3, "A2", "collar_x") and "beyond 10000 m" in p.message
+    assert torch.isfinite(plan.poses(3.3)).all()
+
+
+def test_huge_iredes_coordinates_name_the_point(tmp_path):
+    holes = [_hole("H1", (6.5, 0.1, 1.5), (10, 0.1, 1.5)), _hole("H2", (6.5, 0.2, 1.5), (1e300, 0.2, 1.5))]
+    (tmp_path / "p.xml").write_text(_iredes(holes))
+    plan = read_iredes_plan(tmp_path / "p.xml", checksum="ignore", unit="mm")
+    assert [(p.row, p.hole_id, p.column) for p in plan.problems] == [(6, "H2", "EndPoint")]
+
+
+def test_a_duplicated_csv_header_is_an_error(tmp_path):
+    (tmp_path / "p.csv").write_text(HEADER + ",collar_y\nA1,6.5,0.1,1.5,10,0.1,1.5,cut,9\n")
+    with pytest.raises(InputError, match=r"p.csv: column\(s\) \['collar_y'\] appear more than once .*\[3, 9\]"):
+        read_csv_plan(tmp_path / "p.csv")
+
+
+@pytest.mark.parametrize("hid, bad", [('=HYPERLINK("http://x","y")', True), ("+A1", True), ("-A1", True),
+                                      ("@SUM(A1)", True), ("H\x07", True), ("H\x1b[31m", True), ("-12", False),
+                                      ("C-01", False), ("12", False)])
+def test_ids_a_spreadsheet_would_evaluate_or_with_control_characters_are_row_problems(tmp_path, hid, bad):
+    rows = ["A1,6.5,0.1,1.5,10,0.1,1.5,cut", f'"{hid.replace(chr(34), chr(34) * 2)}",6.5,0.2,1.5,10,0.2,1.5,cut']
+    (tmp_path / "p.csv").write_text("\n".join([HEADER, *rows]) + "\n")
+    plan = read_csv_plan(tmp_path / "p.csv")
+    assert (len(plan.problems) == 1) == bad and (hid in plan.holes["hole_id"].tolist()) != bad
+    if bad:
+        assert plan.problems[0].row == 3 and plan.problems[0].column == "hole_id"
+        assert "formula" in plan.problems[0].message or "control character" in plan.problems[0].message

@@ -328,3 +328,100 @@ def test_stale_runs_of_dead_processes_are_marked_killed_in_every_experiment(tmp_
     assert client.get_run(left.info.run_id).info.status == "KILLED"
     assert "ended without closing the run" in client.get_run(left.info.run_id).data.tags["run.end_reason"]
     assert client.get_run(alive.info.run_id).info.status == "RUNNING"  # this process still lives
+
+
+# --- the solution set and a busy store (issue 18) ---------------------------------------------
+
+_HANGING_WRITER = """
+import sys, time
+from pathlib import Path
+from pipeline.core.io import atomic_write, staged_folder
+folder = Path(sys.argv[1])
+with staged_folder(folder, "sol.csv") as stage:
+    (stage / "sol.csv").write_text("half")
+    def hang(tmp):
+        Path(tmp).write_text("half")
+        print("writing", flush=True)
+        time.sleep(600)
+    atomic_write(folder / "other.csv", hang)
+"""
+
+
+def test_temp_files_of_a_kill_9_are_removed_by_the_next_run_and_a_live_writers_are_kept(tmp_path):
+    from pipeline.core.io import remove_stale_temps
+    from pipeline.plans.output import SolutionPaths, read_solution_set, write_solution_set
+
+    procs = [subprocess.Popen([sys.executable, "-c", _HANGING_WRITER, str(tmp_path)], cwd=PROJECT_ROOT,
+                              stdout=subprocess.PIPE, text=True, env=_env()) for _ in range(2)]
+    for p in procs:
+        assert p.stdout.readline().strip() == "writing"
+    procs[0].send_signal(signal.SIGKILL)
+    procs[0].wait(timeout=60)
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert len(left) == 4 and all(n.endswith(".tmp") for n in left)  # a stage folder and a temp file each
+    out = tmp_path / "sol.csv"
+    paths = SolutionPaths(out, out.with_suffix(".json"), out.with_suffix(".png"))
+    write_solution_set(paths, pd.DataFrame({"hole_id": ["A"], "status": ["ok"]}), {"ok": 1})
+    kept = sorted(p.name for p in tmp_path.iterdir() if p.name.endswith(".tmp"))
+    assert kept == sorted(n for n in left if f".{procs[1].pid}-" in n)  # the dead writer's gone, the live one kept
+    assert read_solution_set(out)[1]["ok"] == 1
+    procs[1].kill()
+    procs[1].wait(timeout=60)
+    assert len(remove_stale_temps(tmp_path)) == 2 and not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+
+
+_SET_WRITER = """
+import sys
+import pandas as pd
+from pathlib import Path
+from pipeline.plans.output import SolutionPaths, write_solution_set
+out, tag = Path(sys.argv[1]), sys.argv[2]
+paths = SolutionPaths(out, out.with_suffix(".json"), out.with_suffix(".png"))
+for i in range(15):
+    table = pd.DataFrame({"hole_id": [f"{tag}{i}-{k}" for k in range(2000)], "status": "ok"})
+    write_solution_set(paths, table, {"writer": tag, "round": i})
+"""
+
+
+def test_two_solves_into_one_out_never_leave_a_mixed_set(tmp_path):
+    """Two writers publish sets into one out= while this process reads them under the lock: every
+    read is one writer's table with that writer's summary."""
+    from pipeline.plans.output import read_solution_set
+
+    out = tmp_path / "sol.csv"
+    writers = [subprocess.Popen([sys.executable, "-c", _SET_WRITER, str(out), tag], cwd=PROJECT_ROOT, env=_env())
+               for tag in ("a", "b")]
+    reads = 0
+    while any(w.poll() is None for w in writers):
+        if out.with_suffix(".json").exists():
+            table, summary = read_solution_set(out)
+            assert table["hole_id"][0] == f"{summary['writer']}{summary['round']}-0" and len(table) == 2000
+            reads += 1
+    assert all(w.returncode == 0 for w in writers) and reads > 0
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_a_store_locked_by_another_process_gets_a_named_wait_then_a_clear_error(tmp_path):
+    """A second run waiting on another process's SQLite write lock (a paused solve) waits
+    tracking.busy_timeout_s, then fails naming tracking.uri (before: a raw OperationalError after ~25 s)."""
+    from pipeline.tracking.runs import StoreBusy
+
+    node = {"enabled": True, "uri": f"sqlite:///{tmp_path}/mlflow.db", "experiment": "boom-ik",
+            "artifact_root": str(tmp_path / "art"), "busy_timeout_s": 1}
+    settings = TrackingSettings.from_config(node)
+    with stage_run(settings, "first", {"stage": "test"}):  # the store exists
+        pass
+    holder = sqlite3.connect(tmp_path / "mlflow.db", timeout=0, isolation_level=None)
+    holder.execute("BEGIN IMMEDIATE")  # the write lock, held as a paused writer holds it
+    start = time.monotonic()
+    try:
+        with pytest.raises(StoreBusy, match=rf"tracking.uri = sqlite:///{tmp_path}/mlflow.db: the MLflow store "
+                                            r"stayed locked by another process .*tracking.busy_timeout_s = 1\)"):
+            with stage_run(settings, "second", {"stage": "test"}):
+                pass
+    finally:
+        holder.execute("ROLLBACK")
+        holder.close()
+    assert time.monotonic() - start < 90
+    with pytest.raises(ConfigError, match=r"tracking.busy_timeout_s = -1: expected a number of seconds >= 0"):
+        TrackingSettings.from_config({**node, "busy_timeout_s": -1})

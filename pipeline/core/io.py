@@ -11,9 +11,11 @@ import hashlib
 import json
 import math
 import os
+import re
 import shutil
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from pipeline.core.errors import InputError
@@ -23,7 +25,8 @@ def atomic_write(path: str | Path, write: Callable[[str], None]) -> None:
     """Call ``write(tmp_path)`` and move the result onto ``path``; on failure ``path`` is untouched."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    # The writer's pid and start time in the name: a later run can tell a kill -9's leftover (remove_stale_temps).
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{process_token()}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
     try:
         write(tmp)
@@ -93,10 +96,11 @@ def file_md5(path: str | Path) -> str:
     return h.hexdigest()
 
 
-def publish(files: dict[Path, Path], lock: Path) -> None:
+def publish(files: dict[Path, Path], lock: Path, remove: Iterable[Path] = ()) -> None:
     """Move finished files onto their destinations, each with one atomic rename, all under one
     file lock: a set written together (a checkpoint, its history, its summary) is replaced together,
-    and a concurrent writer's set never interleaves with it."""
+    and a concurrent writer's set never interleaves with it. ``remove``: files of an earlier set that
+    this set has no counterpart for (they would be read as part of it), deleted under the same lock."""
     from filelock import FileLock
 
     lock.parent.mkdir(parents=True, exist_ok=True)
@@ -104,6 +108,68 @@ def publish(files: dict[Path, Path], lock: Path) -> None:
         for src, dst in files.items():
             Path(dst).parent.mkdir(parents=True, exist_ok=True)
             os.replace(src, dst)
+        for old in remove:
+            Path(old).unlink(missing_ok=True)
+
+
+# ---------------------------------------------------------------------------------------------
+# Temporary files that name their writer, so a later run can remove those of dead processes
+
+_TOKEN: dict[int, str] = {}
+# .<name>.<pid>-<start ms>.<random or "stage">.tmp: atomic_write's files and staged_folder's folders
+_TEMP_NAME = re.compile(r"^\..+\.(?P<pid>\d+)-(?P<start>\d+)\.[A-Za-z0-9_]+\.tmp$")
+
+
+def process_token() -> str:
+    """``<pid>-<process start time, ms>``: a pid alone is reused, the pair names one process."""
+    pid = os.getpid()
+    if pid not in _TOKEN:  # per pid: a forked child is another writer
+        import psutil
+
+        _TOKEN[pid] = f"{pid}-{int(psutil.Process(pid).create_time() * 1000)}"
+    return _TOKEN[pid]
+
+
+def process_alive(pid: int, start_s: float | None = None) -> bool:
+    """Whether process ``pid`` runs and, when ``start_s`` is given, is the one started then."""
+    import psutil
+
+    try:
+        proc = psutil.Process(pid)
+        return start_s is None or abs(proc.create_time() - float(start_s)) < 0.01  # a reused pid is another process
+    except (psutil.NoSuchProcess, ValueError):
+        return False
+
+
+def remove_stale_temps(folder: str | Path) -> list[Path]:
+    """Delete the temporary files and staging folders in ``folder`` whose writer (on this host) is
+    gone, e.g. killed with ``kill -9`` mid-write; a live writer's are left alone. Returns them."""
+    folder = Path(folder)
+    removed = []
+    for entry in folder.iterdir() if folder.is_dir() else ():
+        m = _TEMP_NAME.match(entry.name)
+        if m and not process_alive(int(m["pid"]), int(m["start"]) / 1000):
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry, ignore_errors=True)
+            else:
+                entry.unlink(missing_ok=True)
+            removed.append(entry)
+    return removed
+
+
+@contextmanager
+def staged_folder(folder: str | Path, name: str) -> Iterator[Path]:
+    """A private folder ``.<name>.<pid>-<start>.stage.tmp`` inside ``folder`` (same file system, so
+    its files can be published by rename), removed on the way out; stale ones of dead runs first."""
+    folder = Path(folder)
+    remove_stale_temps(folder)
+    stage = folder / f".{name}.{process_token()}.stage.tmp"
+    shutil.rmtree(stage, ignore_errors=True)
+    stage.mkdir(parents=True)
+    try:
+        yield stage
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
 
 
 def require_writable(folder: Path, what: str, error: type[ValueError] = InputError) -> Path:

@@ -3,6 +3,8 @@ base frame), every other column carried through."""
 
 from __future__ import annotations
 
+import csv
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +27,19 @@ def _read_csv_text(path: Path, **kw) -> pd.DataFrame:
     return df
 
 
+def _refuse_duplicate_header(path: Path) -> None:
+    """pandas renames a repeated column ``x`` to ``x.1`` and the checks would read the first one: which
+    of the two holds the value is the user's to say, so the file is refused."""
+    with open(path, newline="", encoding="utf-8", errors="replace") as f:
+        header = next(csv.reader(f), [])
+    names = [c.strip() for c in header]
+    dups = sorted(c for c, k in Counter(names).items() if k > 1 and c)
+    if dups:
+        where = {c: [i + 1 for i, n in enumerate(names) if n == c] for c in dups}
+        raise InputError(f"{path}: column(s) {dups} appear more than once in the header (columns {where}); "
+                         "keep one of each")
+
+
 def read_csv_plan(path: str | Path, *, min_length: float = MIN_LENGTH) -> DrillPlan:
     """Read a CSV drill plan (columns :data:`REQUIRED`, metres, base frame; others carried).
 
@@ -37,6 +52,7 @@ def read_csv_plan(path: str | Path, *, min_length: float = MIN_LENGTH) -> DrillP
         raise InputError(f"{path}: no such drill plan")
     # Text for the checked columns (ids keep leading zeros, bad numbers keep their spelling);
     # pandas' own typing for the carried columns.
+    _refuse_duplicate_header(path)
     text = _read_csv_text(path, dtype=str, keep_default_na=False)
     missing = [c for c in REQUIRED if c not in text.columns]
     if missing:

@@ -35,8 +35,10 @@ as ChkSum value", and types it ``xsd:hexBinary``; in practice Epiroc's rig softw
 tools that talk to it write it as an unsigned *decimal* integer. So: the CRC32 (zlib/IEEE
 802.3, as both tools use) is taken over the file's bytes with the element's text replaced
 by ``0``; the writer writes decimal by default (``checksum="hex"``: 8 upper-case hex digits);
-the reader accepts either spelling. An empty or ``0`` value means "not computed" and is
-not verified (it is logged).
+the reader accepts either spelling. A file whose checksum cannot be verified (no trailer, an
+empty or ``0`` value, UTF-16/32 bytes, a ``ChkSum`` only inside a comment) is *unverified*:
+refused under ``checksum="refuse"``, read and marked ``unverified`` under ``"warn"``
+(:func:`verify_checksum`); the plan carries the state (``DrillPlan.checksum``).
 
 Axes: IREDES has no fixed axis convention. Surface-mine files put northing in ``PointX`` and
 easting in ``PointY``; the boom base frame is x toward the face, y across, z up. The mapping
@@ -54,9 +56,11 @@ the decimal "Epiroc" vs hexBinary "XSD spec" checksum options); and a stand-alon
 the CRC32 of the UTF-8 file with the value replaced by ``0``.
 
 XML is read with :mod:`xml.parsers.expat` (standard library; it gives the line of every
-``<Hole>``, which row-level problems name) into an :mod:`xml.etree.ElementTree` tree, and
-written with ElementTree. No third-party XML library is needed: the files are small, the
-structure is flat, and lxml would add a compiled dependency for no gain here.
+``<Hole>``, which row-level problems name) in one streaming pass: each ``<Hole>`` becomes a small
+:mod:`xml.etree.ElementTree` tree, is read and dropped, so memory follows the holes' values, not a
+tree of the file; a text node over ``max_text`` characters is refused. Written with ElementTree.
+No third-party XML library is needed: the structure is flat, and lxml would add a compiled
+dependency for no gain here.
 """
 
 from __future__ import annotations
@@ -197,10 +201,21 @@ def crc32_text(value: int, fmt: str = "decimal") -> str:
     return str(value) if fmt == "decimal" else f"{value:08X}"
 
 
+_HIDDEN = re.compile(rb"<!--.*?-->|<!\[CDATA\[.*?\]\]>|<\?.*?\?>", re.DOTALL)  # no element can stand in these
+_WIDE_BOMS = (b"\xff\xfe", b"\xfe\xff", b"\x00\x00\xfe\xff")
+
+
+def _chksum_matches(data: bytes) -> list[re.Match]:
+    """``ChkSum`` elements in the bytes, leaving out look-alikes inside comments, CDATA and
+    processing instructions (a checksum there checks nothing)."""
+    hidden = [m.span() for m in _HIDDEN.finditer(data)]
+    return [m for m in _CHKSUM.finditer(data) if not any(a <= m.start() < b for a, b in hidden)]
+
+
 def file_crc32(data: bytes, source: str = "IREDES file") -> tuple[int, str | None]:
     """CRC32 of the file with the ChkSum text replaced by ``0``, and the stored text
     (``None`` when the file has no ChkSum element)."""
-    found = list(_CHKSUM.finditer(data))
+    found = _chksum_matches(data)
     if not found:
         return zlib.crc32(data), None
     if len(found) > 1:
@@ -219,56 +234,132 @@ def _matches(stored: str, crc: int) -> bool:
     return as_dec or as_hex
 
 
-def verify_checksum(data: bytes, source: str, policy: str = "refuse") -> bool | None:
-    """Check ChkSum: ``True`` when it matches, ``None`` when absent/not computed/ignored,
-    ``False`` on a mismatch under ``policy="warn"``; ``"refuse"`` raises :class:`InputError`."""
+def verify_checksum(data: bytes, source: str, policy: str = "refuse",
+                    elements: Sequence[tuple[int, str]] | None = None) -> tuple[str, str]:
+    """The file's ChkSum state: ``("verified", ...)``, ``("unverified", why)`` or ``("ignored", ...)``.
+
+    Unverified: no ChkSum element (no trailer), a ChkSum of ``0`` or empty (not computed), an encoding
+    whose bytes the CRC cannot be taken over as rig software does (UTF-16/32), a ChkSum that is not a
+    real element (only in a comment), or a mismatch. ``policy="refuse"`` raises :class:`InputError`
+    for every unverified file, ``"warn"`` logs it and reads on, ``"ignore"`` does not look.
+    ``elements``: the (line, text) of the real ``ChkSum`` elements, as the parser found them."""
     if policy not in CHECKSUM_POLICIES:
         raise ConfigError(f"iredes checksum policy = {policy!r}: expected one of {list(CHECKSUM_POLICIES)}")
     if policy == "ignore":
-        return None
-    crc, stored = file_crc32(data, source)
-    if stored is None or stored in ("", "0"):
-        log.info("%s: no IREDES checksum to verify (ChkSum %r)", source, stored)
-        return None
-    if _matches(stored, crc):
-        return True
-    msg = (
-        f"{source}: IREDES checksum mismatch: ChkSum in the file is {stored!r}, the CRC32 of the file with "
-        f"ChkSum 0 is {crc} (hex {crc:08X}); the file changed after it was written"
-    )
+        return "ignored", "solve.iredes.checksum=ignore"
+    if elements is None:
+        elements = _scan(data, source, MAX_TEXT).chksum
+    if len(elements) > 1:
+        raise InputError(f"{source}: {len(elements)} ChkSum elements (lines {[e[0] for e in elements]}); "
+                         "an IREDES file has one")
+    why = None
+    if data.startswith(_WIDE_BOMS) or b"\x00" in data[:4096]:
+        why = "the file is UTF-16 or UTF-32; the checksum is a CRC32 over the UTF-8 bytes rig software writes"
+    elif not elements:
+        found = _CHKSUM.search(data)
+        why = ("a ChkSum stands only inside a comment, which checks nothing" if found else
+               "the file has no ChkSum (no IR:GenTrailer)")
+    elif elements[0][1] in ("", "0"):
+        why = f"ChkSum is {elements[0][1]!r} (not computed)"
+    else:
+        crc, stored = file_crc32(data, source)
+        if stored is None or stored != elements[0][1]:
+            why = "the ChkSum element cannot be located in the file's bytes"
+        elif _matches(stored, crc):
+            return "verified", f"ChkSum {stored}"
+        else:
+            why = (f"IREDES checksum mismatch: ChkSum in the file is {stored!r}, the CRC32 of the file with "
+                   f"ChkSum 0 is {crc} (hex {crc:08X}); the file changed after it was written")
     if policy == "refuse":
-        raise InputError(msg + "; pass checksum='warn' to read it anyway")
-    log.warning("%s; reading it anyway", msg)
-    return False
+        raise InputError(f"{source}: {why}; refused (solve.iredes.checksum=refuse): pass checksum='warn' "
+                         "(solve.iredes.checksum=warn) to solve it as unverified")
+    log.warning("%s: %s; reading it anyway, as unverified (checksum=warn)", source, why)
+    return "unverified", why
 
 
 # ---------------------------------------------------------------------------------------------
 # Reading
 
+MAX_TEXT = 65_536  # characters in one text node: a coordinate needs 30, a 300 MB node is an attack or a fault
+_FEED = 1 << 20  # bytes handed to expat at a time
 
-def _parse(data: bytes, source: str) -> tuple[ET.Element, dict[ET.Element, int]]:
-    """ElementTree of the file and each element's start line (expat, so errors have a line)."""
-    builder = ET.TreeBuilder()
+
+@dataclass
+class _Scan:
+    root: str | None = None
+    holes: list[tuple[str, list[str], dict[str, str]]] = field(default_factory=list)
+    lines: list[int] = field(default_factory=list)
+    top: dict[str, str] = field(default_factory=dict)  # PlanId, PlanName (children of the root)
+    chksum: list[tuple[int, str]] = field(default_factory=list)
+
+
+def _scan(data: bytes, source: str, max_text: int) -> _Scan:
+    """One pass of expat over the file: each ``<Hole>`` is built as a small tree, read into its
+    fields and dropped, so memory follows the holes' values, not a tree of the whole file; every
+    text node longer than ``max_text`` characters is refused with its line."""
     parser = expat.ParserCreate(namespace_separator=" ")
-    lines: dict[ET.Element, int] = {}
+    out = _Scan()
+    stack: list[str] = []
+    state = {"builder": None, "depth": 0, "size": 0, "line": 0}
+    text: list[str] = []
 
     def qname(name: str) -> str:
         uri, _, local = name.rpartition(" ")
         return f"{{{uri}}}{local}" if uri else local
 
     def start(name, attrs):
-        lines[builder.start(qname(name), {qname(k): v for k, v in attrs.items()})] = parser.CurrentLineNumber
+        local = name.rpartition(" ")[2]
+        if not stack:
+            out.root = local
+        stack.append(local)
+        state["size"] = 0
+        builder = state["builder"]
+        if builder is None and local == "Hole":
+            builder = state["builder"] = ET.TreeBuilder()
+            state["depth"] = len(stack)
+            out.lines.append(parser.CurrentLineNumber)
+        if builder is not None:
+            builder.start(qname(name), {qname(k): v for k, v in attrs.items()})
+        else:
+            text.clear()
+            state["line"] = parser.CurrentLineNumber
+
+    def end(name):
+        local = stack.pop()
+        state["size"] = 0
+        builder = state["builder"]
+        if builder is not None:
+            builder.end(qname(name))
+            if len(stack) + 1 == state["depth"]:
+                out.holes.append(_hole_fields(builder.close()))
+                state["builder"] = None
+        elif local == "ChkSum":
+            out.chksum.append((state["line"], "".join(text).strip()))
+        elif local in ("PlanId", "PlanName") and len(stack) == 1:
+            out.top[local] = "".join(text).strip()
+
+    def chars(piece):
+        state["size"] += len(piece)
+        if state["size"] > max_text:
+            raise InputError(f"{source}: line {parser.CurrentLineNumber}: a text node in <{stack[-1]}> is longer "
+                             f"than {max_text} characters; not a drill plan value (solve.iredes.max_text)")
+        if state["builder"] is not None:
+            state["builder"].data(piece)
+        else:
+            text.append(piece)
 
     parser.StartElementHandler = start
-    parser.EndElementHandler = lambda name: builder.end(qname(name))
-    parser.CharacterDataHandler = builder.data
+    parser.EndElementHandler = end
+    parser.CharacterDataHandler = chars
     try:
-        parser.Parse(data, True)
+        for i in range(0, len(data), _FEED):
+            parser.Parse(data[i : i + _FEED], False)
+        parser.Parse(b"", True)
     except expat.ExpatError as e:
         raise InputError(
             f"{source}: malformed XML at line {e.lineno}, column {e.offset + 1}: {expat.ErrorString(e.code)}"
         ) from None
-    return builder.close(), lines
+    return out
 
 
 def _hole_fields(hole: ET.Element) -> tuple[str, list[str], dict[str, str]]:
@@ -294,14 +385,16 @@ def read_iredes_plan(
     unit: str = "m",
     origin: Sequence[float] = (0.0, 0.0, 0.0),
     checksum: str = "refuse",
+    max_text: int = MAX_TEXT,
     min_length: float = MIN_LENGTH,
 ) -> DrillPlan:
     """Read an IREDES ``DRPPlan`` into a :class:`DrillPlan` (base frame, metres).
 
     Row problems (a missing or unreadable point coordinate, an empty or duplicate ``HoleId``,
     ``EndPoint`` equal to ``StartPoint``) are collected with the line of the hole's ``<Hole>``
-    tag, as the CSV reader does. ``checksum``: ``"refuse"`` (a mismatch raises),
-    ``"warn"`` (logs it and reads on) or ``"ignore"``. Axes, unit, origin: :class:`AxisMap`.
+    tag, as the CSV reader does. ``checksum``: ``"refuse"`` (a file that cannot be verified
+    raises), ``"warn"`` (logs it, reads on, the plan says ``checksum = "unverified"``) or
+    ``"ignore"``; see :func:`verify_checksum`. Axes, unit, origin: :class:`AxisMap`.
     """
     path = Path(path)
     amap = _axis_map(axes, unit, origin)
@@ -310,33 +403,35 @@ def read_iredes_plan(
     data = path.read_bytes()
     if not data.strip():
         raise InputError(f"{path}: empty file; expected an IREDES DRPPlan")
-    root, lines = _parse(data, str(path))
-    if _local(root.tag) != "DRPPlan":
-        raise InputError(f"{path}: root element is {_local(root.tag)!r}, expected 'DRPPlan' (an IREDES drill plan)")
-    verify_checksum(data, str(path), checksum)
-    holes = [el for el in root.iter() if _local(el.tag) == "Hole"]
-    if not holes:
+    scan = _scan(data, str(path), max_text)
+    if scan.root != "DRPPlan":
+        raise InputError(f"{path}: root element is {scan.root!r}, expected 'DRPPlan' (an IREDES drill plan)")
+    state, detail = verify_checksum(data, str(path), checksum, scan.chksum)
+    del data
+    if not scan.holes:
         raise InputError(f"{path}: no Hole elements in the DRPPlan")
-    fields = [_hole_fields(h) for h in holes]
+    fields = scan.holes
     coord_text = pd.DataFrame([f[1] for f in fields], columns=LABELS, dtype=object)
     extras = pd.DataFrame([f[2] for f in fields], dtype=object).fillna("")
     extras = pd.concat([extras[["hole_type"]], infer_column_types(extras.drop(columns="hole_type"))], axis=1)
-    plan_id = _text(_child(root, "PlanId")) or path.stem
-    return checked_plan(
+    plan_id = scan.top.get("PlanId") or path.stem
+    plan = checked_plan(
         [f[0] for f in fields],
         coord_text,
         extras,
-        np.array([lines[h] for h in holes]),
+        np.array(scan.lines),
         source=str(path),
         fmt="iredes",
         plan_id=plan_id,
-        name=_text(_child(root, "PlanName")) or plan_id,
+        name=scan.top.get("PlanName") or plan_id,
         labels=LABELS,
         to_base=amap.to_base,
         id_label="HoleId",
         length_label="EndPoint",
         min_length=min_length,
     )
+    plan.checksum, plan.checksum_detail = state, detail
+    return plan
 
 
 # ---------------------------------------------------------------------------------------------

@@ -18,6 +18,7 @@ The plan model and the row checks here; CSV in :mod:`pipeline.plans.csv_plan`, I
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -34,6 +35,13 @@ COORDS = COLLAR + TOE
 REQUIRED = ["hole_id", *COORDS]
 HOLE_TYPES = ("cut", "relief", "stoping", "lifter", "contour")
 MIN_LENGTH = 1e-6  # m; a shorter hole has no usable direction (toe == collar)
+# m from the boom base: far beyond any boom's reach, far below where squaring a coordinate overflows (1e154)
+MAX_COORD = 1e4
+# Ids a spreadsheet would evaluate as a formula (OWASP "CSV injection"), unless a plain number, and
+# control characters (they break CSV rows, logs and terminals): such a row is a row problem.
+_FORMULA_START = ("=", "+", "-", "@")
+_PLAIN_NUMBER = re.compile(r"[+-]?\d+(\.\d+)?")
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 SHOWN_PROBLEMS = 10  # problems quoted in a file-level error message
 _NON_FINITE = r"[+-]?(nan|inf|infinity)"
 
@@ -68,6 +76,13 @@ class DrillPlan:
     name: str = ""
     source: str | None = None
     format: str = "csv"
+    # each good hole's line in the file (None: 0, 1, ...), so the solution keeps the plan's order
+    lines: np.ndarray | None = None
+    # the bad rows: hole_id, line and their own carried columns (the problems say what is wrong)
+    rejected: pd.DataFrame | None = None
+    # IREDES ChkSum: verified / unverified / ignored; "not applicable" for formats without one
+    checksum: str = "not applicable"
+    checksum_detail: str = ""
 
     def __len__(self) -> int:
         return len(self.holes)
@@ -154,13 +169,27 @@ def checked_plan(
     empty_id = ids == ""
     for i in np.flatnonzero(empty_id):
         problems.append((i, 0, id_label, "empty hole id"))
+    for i, hid in enumerate(ids):
+        if _CONTROL.search(hid):
+            problems.append((i, 0, id_label, f"hole id {hid!r} holds a control character; rename the hole"))
+        elif hid.startswith(_FORMULA_START) and not _PLAIN_NUMBER.fullmatch(hid):
+            problems.append((i, 0, id_label, f"hole id {hid!r} starts with {hid[0]!r}: a spreadsheet would run it "
+                                              "as a formula; rename the hole"))
     series = pd.Series(ids)
     dup = series.duplicated(keep="first").to_numpy() & ~empty_id
     first = pd.Series(np.arange(len(ids))).groupby(ids).transform("min").to_numpy()
     for i in np.flatnonzero(dup):
         problems.append((i, 0, id_label, f"duplicate hole id {ids[i]!r} (first at row {rows[first[i]]})"))
-    base = values if to_base is None else to_base(values)
-    length = np.linalg.norm(base[:, 3:] - base[:, :3], axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):
+        base = values if to_base is None else to_base(values)
+        far = ~bad.any(axis=1, keepdims=True) & ~(np.abs(base) <= MAX_COORD)  # huge, or overflowed by the axis map
+        for i, j in zip(*np.nonzero(far), strict=True):
+            # an axis map mixes a point's columns: name the point (IREDES), or the column itself (CSV)
+            label = labels[j] if to_base is None else labels[j].split("/")[0]
+            problems.append((i, j + 1, label, f"coordinate {base[i, j]:.6g} m (base frame) is beyond "
+                                              f"{MAX_COORD:g} m from the boom base: check the unit and origin"))
+        bad = bad | far
+        length = np.linalg.norm(np.where(bad, 0.0, base)[:, 3:] - np.where(bad, 0.0, base)[:, :3], axis=1)
     short = ~bad.any(axis=1) & (length < min_length)
     for i in np.flatnonzero(short):
         problems.append((i, 7, length_label, f"zero-length hole: toe equals collar (length {length[i]:.3g} m)"))
@@ -174,11 +203,14 @@ def checked_plan(
         raise InputError(f"{source}: no usable hole in {len(ids)} row(s): {shown}{more}")
     holes = pd.DataFrame(base[good], columns=COORDS)
     holes.insert(0, "hole_id", pd.Series(ids[good], dtype=str))
-    extras = extras.reset_index(drop=True).loc[good].reset_index(drop=True)
+    extras = extras.reset_index(drop=True)
     if "hole_type" in extras:
         extras["hole_type"] = extras["hole_type"].astype("string").fillna("").astype(str)
-    holes = pd.concat([holes, extras], axis=1)
-    return DrillPlan(holes, found, plan_id=plan_id, name=name, source=source, format=fmt)
+    holes = pd.concat([holes, extras.loc[good].reset_index(drop=True)], axis=1)
+    rejected = pd.concat([pd.DataFrame({"hole_id": pd.Series(ids[~good], dtype=str), "line": rows[~good]}),
+                          extras.loc[~good].reset_index(drop=True)], axis=1)
+    return DrillPlan(holes, found, plan_id=plan_id, name=name, source=source, format=fmt, lines=rows[good],
+                     rejected=rejected)
 
 
 def plan_frame(plan: DrillPlan | pd.DataFrame) -> pd.DataFrame:

@@ -34,7 +34,7 @@ from pathlib import Path
 
 from pipeline.core.config import main_root
 from pipeline.core.errors import ConfigError
-from pipeline.core.io import file_md5, require_writable
+from pipeline.core.io import file_md5, process_alive, require_writable
 from pipeline.core.signals import Terminated, raise_if_terminated, terminate_as_interrupt
 
 log = logging.getLogger(__name__)
@@ -68,6 +68,7 @@ class TrackingSettings:
     register_models: bool = True  # trained networks into the Model Registry as <experiment>-<method>
     ui_host: str = "127.0.0.1"  # python -m pipeline.dashboard: where the MLflow UI listens
     ui_port: int = 5000
+    busy_timeout_s: float = 120.0  # how long to wait on a store another process holds locked
 
     @classmethod
     def from_config(cls, node: Mapping) -> TrackingSettings:
@@ -89,8 +90,12 @@ class TrackingSettings:
             raise ConfigError(f"tracking.ui_host = {host!r}: expected a host name or address")
         if isinstance(port, bool) or not isinstance(port, int) or not 0 < port < 65536:
             raise ConfigError(f"tracking.ui_port = {port!r}: expected a port number (1-65535)")
+        busy = node.get("busy_timeout_s", 120.0)
+        if isinstance(busy, bool) or not isinstance(busy, (int, float)) or not math.isfinite(busy) or busy < 0:
+            raise ConfigError(f"tracking.busy_timeout_s = {busy!r}: expected a number of seconds >= 0")
         settings = cls(enabled, resolve_uri(node.get("uri")), experiment,
-                       root if root.is_absolute() else main_root() / root, system_metrics, register, host, port)
+                       root if root.is_absolute() else main_root() / root, system_metrics, register, host, port,
+                       float(busy))
         if enabled:
             check_store(settings)  # with the other settings: before any data is read or run is opened
         return settings
@@ -113,6 +118,50 @@ def check_store(settings: TrackingSettings) -> None:
                               "or set tracking.uri=null for the local SQLite store") from None
     if not str(settings.artifact_root).startswith(("s3:", "gs:", "http:", "https:")):
         require_writable(settings.artifact_root, "tracking.artifact_root", ConfigError)
+
+
+class StoreBusy(ConfigError):
+    """The store stayed locked by another process for longer than ``tracking.busy_timeout_s``."""
+
+
+_BUSY = {"uri": "", "timeout_s": 120.0}  # the store of the current stage run (one per process)
+
+
+def _is_locked(exc: BaseException) -> bool:
+    """SQLite's "database is locked" (MLflow's SQLAlchemy store waits 20 s on the lock itself, then
+    raises it as ``sqlalchemy.exc.OperationalError``, sometimes wrapped in an MlflowException)."""
+    seen = 0
+    while exc is not None and seen < 10:
+        if "database is locked" in str(exc) or "database table is locked" in str(exc):
+            return True
+        exc, seen = exc.__cause__ or exc.__context__, seen + 1
+    return False
+
+
+def waiting_on_busy_store(call, what: str, *args, **kwargs):
+    """``call(*args, **kwargs)``, retried while the SQLite store is locked by another process (a paused
+    or long write), up to ``tracking.busy_timeout_s`` in all; then :class:`StoreBusy` naming
+    ``tracking.uri``, instead of a raw traceback."""
+    start = time.monotonic()
+    warned = False
+    while True:
+        try:
+            return call(*args, **kwargs)
+        except Exception as exc:
+            if not _is_locked(exc):
+                raise
+            waited = time.monotonic() - start
+            if waited >= _BUSY["timeout_s"]:
+                raise StoreBusy(
+                    f"tracking.uri = {_BUSY['uri']}: the MLflow store stayed locked by another process for "
+                    f"{waited:.0f} s while {what} (tracking.busy_timeout_s = {_BUSY['timeout_s']:g}); wait for "
+                    "the other run to finish or resume it, raise tracking.busy_timeout_s, or log to another "
+                    "store (tracking.uri=...)") from None
+            if not warned:
+                log.warning("MLflow store %s is locked by another process; waiting up to %g s "
+                            "(tracking.busy_timeout_s)", _BUSY["uri"], _BUSY["timeout_s"])
+                warned = True
+            time.sleep(min(1.0, max(0.0, _BUSY["timeout_s"] - waited)))
 
 
 def prepare_store(settings: TrackingSettings) -> str:
@@ -149,12 +198,9 @@ def process_tags() -> dict[str, str]:
 
 
 def _process_alive(pid: int, start: str | None) -> bool:
-    import psutil
-
     try:
-        proc = psutil.Process(pid)
-        return start is None or abs(proc.create_time() - float(start)) < 0.01  # a reused pid is another process
-    except (psutil.NoSuchProcess, ValueError):
+        return process_alive(pid, None if start is None else float(start))
+    except ValueError:
         return False
 
 
@@ -247,7 +293,7 @@ class StageRun:
                 log.warning("run %s keeps its first values of %s", self.run_id, changed)
             items = [(k, v) for k, v in flatten(params).items() if k not in logged]
             for i in range(0, len(items), 100):  # MLflow takes at most 100 params a batch
-                mlflow.log_params(dict(items[i : i + 100]))
+                waiting_on_busy_store(mlflow.log_params, "logging params", dict(items[i : i + 100]))
 
     def log_metrics(self, metrics: Mapping, step: int | None = None, prefix: str = "") -> None:
         """Finite numbers only (MLflow stores NaN, but a dashboard curve through NaN says nothing)."""
@@ -257,41 +303,42 @@ class StageRun:
             clean = {f"{prefix}{k}": float(v) for k, v in metrics.items()
                      if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)}
             if clean:
-                mlflow.log_metrics(clean, step=step)
+                waiting_on_busy_store(mlflow.log_metrics, "logging metrics", clean, step=step)
 
     def set_tags(self, tags: Mapping[str, str]) -> None:
         if self.active:
             import mlflow
 
-            mlflow.set_tags(dict(tags))
+            waiting_on_busy_store(mlflow.set_tags, "setting tags", dict(tags))
 
     def log_table(self, df, path: str) -> None:
         """A DataFrame as an MLflow table artifact (object columns as text, which the viewer needs)."""
         if self.active:
             import mlflow
 
-            mlflow.log_table(df.astype({c: str for c in df.columns if df[c].dtype == object}), path)
+            waiting_on_busy_store(mlflow.log_table, f"logging {path}",
+                                  df.astype({c: str for c in df.columns if df[c].dtype == object}), path)
 
     def log_figure(self, fig, path: str) -> None:
         if self.active:
             import mlflow
 
-            mlflow.log_figure(fig, path)
+            waiting_on_busy_store(mlflow.log_figure, f"logging {path}", fig, path)
 
     def log_text(self, text: str, path: str) -> None:
         if self.active:
             import mlflow
 
-            mlflow.log_text(text, path)
+            waiting_on_busy_store(mlflow.log_text, f"logging {path}", text, path)
 
     def log_artifact(self, path: str | Path, folder: str | None = None) -> None:
         if self.active:
             import mlflow
 
             if Path(path).is_dir():
-                mlflow.log_artifacts(str(path), folder)
+                waiting_on_busy_store(mlflow.log_artifacts, f"logging {path}", str(path), folder)
             else:
-                mlflow.log_artifact(str(path), artifact_path=folder)
+                waiting_on_busy_store(mlflow.log_artifact, f"logging {path}", str(path), artifact_path=folder)
 
     def log_network(self, model, input_example, checkpoint: str | Path, name: str = "model", step: int = 0,
                     registered_name: str | None = None, alias: str = "newest"):
@@ -359,7 +406,7 @@ class StageRun:
             with warnings.catch_warnings():  # MLflow registers two equivalent sources for local files
                 warnings.filterwarnings("ignore", message="The specified dataset source can be interpreted")
                 ds = mlflow.data.from_pandas(df, source=str(path), name=path.name, digest=digest or file_md5(path))
-            mlflow.log_input(ds, context=context)
+            waiting_on_busy_store(mlflow.log_input, f"logging the dataset {path.name}", ds, context=context)
             return ds
         return None
 
@@ -380,10 +427,12 @@ def stage_run(settings: TrackingSettings, run_name: str, tags: Mapping[str, str]
             except Terminated as exc:
                 raise SystemExit(128 + exc.signum) from exc
             return
-        exp_id = prepare_store(settings)
-        mark_stale_runs()
-        run = _start(exp_id, run_name, {**process_tags(), **dict(tags or {})},
-                     bool(system_metrics and settings.system_metrics), resume_run_id)
+        _BUSY.update(uri=settings.uri, timeout_s=settings.busy_timeout_s)
+        exp_id = waiting_on_busy_store(prepare_store, "opening the experiment", settings)
+        waiting_on_busy_store(mark_stale_runs, "marking stale runs")
+        run = waiting_on_busy_store(_start, "starting the run", exp_id, run_name,
+                                    {**process_tags(), **dict(tags or {})},
+                                    bool(system_metrics and settings.system_metrics), resume_run_id)
         run_id = run.info.run_id
         try:
             yield StageRun(run_id)
@@ -429,8 +478,8 @@ def _end(run_id: str, status: str, reason: str | None) -> None:
 
     if reason:
         with contextlib.suppress(Exception):  # the store itself may be what failed
-            mlflow.set_tag(END_REASON, reason)
-    mlflow.end_run(status)
+            waiting_on_busy_store(mlflow.set_tag, "recording why the run ended", END_REASON, reason)
+    waiting_on_busy_store(mlflow.end_run, f"ending the run {status}", status)
     if status != "FINISHED":
         log.error("MLflow run %s ended %s: %s", run_id, status, reason)
 
