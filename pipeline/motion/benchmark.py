@@ -22,6 +22,7 @@ Seeded throughout: the same settings give the same pairs and stands.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import time
 from dataclasses import dataclass, field
@@ -41,6 +42,7 @@ from pipeline.solvers.base import HoleTargets
 from pipeline.solvers.hybrid import BoomObstacle, HybridSolver
 
 D = torch.float64
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -149,7 +151,7 @@ def move_benchmark(rig: Rig, plan: DrillPlan, reach: Reach, solvers: list[Hybrid
     poses = plan.poses(rig.booms[0].boom.preview_depth)
     index_of = {h: k for k, h in enumerate(plan.holes["hole_id"])}
     planner = PlannerSettings(time_s=settings.planner_time_s, simplify_s=settings.simplify_s, seed=settings.seed)
-    records = []
+    records, started = [], time.perf_counter()
     for i, (mount, solver) in enumerate(zip(rig.booms, solvers, strict=True)):
         ok = _ok_rows(reach, mount.name)
         holes, q_reach = ok["hole_id"].tolist(), _joints(ok, rig, i)
@@ -171,6 +173,8 @@ def move_benchmark(rig: Rig, plan: DrillPlan, reach: Reach, solvers: list[Hybrid
         q_end = solved.q.reshape(2, P, -1)
         end_ok = np.array([s == "ok" for s in solved.status]).reshape(2, P).all(0)
         for p in range(P):
+            if p and p % 50 == 0:
+                log.info("boom %s: %d of %d pairs (%.0f s)", mount.name, p, P, time.perf_counter() - started)
             rec = {"boom": mount.name, "from": holes[ab[p, 0]], "to": holes[ab[p, 1]],
                    **{f"stand_{rig.booms[j].name}": ids[p] for j, (_, ids) in stands.items()}}
             if not end_ok[p]:
