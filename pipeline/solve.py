@@ -3,6 +3,7 @@
     python -m pipeline.solve plan=data/plans/demo_face.csv
     python -m pipeline.solve plan=round_42.xml out=round_42_joints.csv strict=true
     python -m pipeline.solve plan=round_42.csv solve.model_uri=models:/boom-ik-cuikm@champion
+    python -m pipeline.solve rig=twin plan=data/plans/demo_face.csv     # a reach table: every hole by every boom
 
 Reads a CSV or IREDES plan (bad rows are reported with their row and id, the good ones solved),
 solves every hole with the hybrid solver (:mod:`pipeline.solvers.hybrid`), and writes
@@ -15,6 +16,11 @@ checked before any work and the three files are published as one set (:mod:`pipe
 the plan is solved in chunks (:mod:`pipeline.plans.chunks`). Logs an MLflow run. With ``strict=true``
 it exits with status 1 unless every hole is ok. The hybrid's settings are the ``solver`` group
 (conf/solver/hybrid.yaml).
+
+A rig of more than one boom (``rig=twin``, ``rig=trio``) writes a reach table instead
+(:mod:`pipeline.plans.reach`, docs/rig.md): one row per hole and boom, a ``boom`` column, the other
+booms at park; ``strict=true`` then asks every hole to be ok by at least one boom. ``rig=single``
+(the default) is today's path, unchanged.
 """
 
 from __future__ import annotations
@@ -28,8 +34,10 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from pipeline.assembly.build import build_safety, load_boom
+from pipeline.assembly.rig import build_rig
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import configure_process
+from pipeline.core.errors import ConfigError
 from pipeline.core.io import require_writable
 from pipeline.core.settings import RuntimeSettings, coerce, parse, rule
 from pipeline.data.holes import joint_box
@@ -39,6 +47,7 @@ from pipeline.plans.chunks import solve_in_chunks
 from pipeline.plans.iredes import MAX_TEXT
 from pipeline.plans.model import COLLAR
 from pipeline.plans.output import solution_paths, write_solution_set
+from pipeline.plans.reach import reach_figure, reach_table, rig_solvers
 from pipeline.plans.read import MAX_PLAN_MB, read_plan
 from pipeline.plans.solutions import CLEARANCE_COLUMNS, solution_frame, status_counts
 from pipeline.solvers.base import NetworkSolver
@@ -85,6 +94,9 @@ def run(cfg: DictConfig) -> dict:
     out = paths.csv
     require_writable(out.parent, "out (its folder)")
     strict = coerce(cfg.get("strict", False), "bool", "strict")
+    rig = build_rig(cfg.rig, cfg.tunnel, cfg.safety)
+    if len(rig) > 1:  # a reach table; one boom keeps today's path and file format
+        return solve_rig(cfg, rig, settings, hybrid, tracking, plan_path, paths, strict)
     boom = load_solve_boom(cfg.boom, cfg.get("boom_model"))
     safety = build_safety(boom, cfg.tunnel, cfg.safety)
     iredes = asdict(settings.iredes) if plan_path.suffix.lower() == ".xml" else {}
@@ -125,6 +137,49 @@ def run(cfg: DictConfig) -> dict:
     if strict and summary["ok"] != len(table):
         raise SystemExit(f"strict: {len(table) - summary['ok']} of {len(table)} holes are not ok (see {out})")
     return {**summary, "checksum": plan.checksum}
+
+
+def solve_rig(cfg: DictConfig, rig, settings: SolveSettings, hybrid: HybridSettings, tracking, plan_path, paths,
+              strict: bool) -> dict:
+    """Every hole by every boom of ``rig``, the others at park: the reach table, its JSON and figure,
+    published as one set like a single boom's solution."""
+    if cfg.get("boom_model"):
+        raise ConfigError(f"boom_model = {cfg.boom_model!r}: a calibrated boom serves one boom; rig '{rig.name}' "
+                          f"({rig.spec.source}) has booms {rig.names}: use rig=single")
+    source = settings.model_uri or project_path(cfg.paths.data) / "models" / f"{settings.network}.pt"
+    plan = read_plan(plan_path, settings.max_plan_mb,
+                     **(asdict(settings.iredes) if plan_path.suffix.lower() == ".xml" else {}))
+    out = paths.csv
+    for line in plan.report():
+        log.warning("skipped: %s", line)
+    method = f"hybrid ({settings.model_uri or settings.network})"
+    box = cfg.holes.sup.get("box")
+    with stage_run(tracking, f"solve-{plan_path.stem}-{rig.name}", {"stage": "solve", "plan": str(plan_path),
+                                                                    "rig": rig.name,
+                                                                    "plan_checksum": plan.checksum}) as mlrun:
+        mlrun.log_params({"plan": str(plan_path), "rig": rig.name, "solve": as_dict(cfg.solve),
+                          "solver": as_dict(cfg.solver), "plan_checksum": plan.checksum})
+        def network(boom):  # each boom's first start, checked against its config
+            return NetworkSolver(boom, load_network(source, boom, tracking.uri, "solve.model_uri")[0], settings.network)
+
+        solvers = rig_solvers(rig, network, hybrid, joint_box(rig.booms[0].boom, None if box is None else as_dict(box)))
+        reach = reach_table(plan, rig, solvers, method)
+        summary = {"rig": rig.name, "booms": rig.names, "invalid_rows": invalid_rows(plan), **reach.summary()}
+        mlrun.log_metrics({k: v for k, v in summary.items() if isinstance(v, (int, float))})
+        if len(reach.table) <= LOGGED_TABLE_ROWS:
+            mlrun.log_table(reach.table, "reach.json")
+        fig = reach_figure(reach, plan, rig) if settings.figure else None
+        if fig is not None:
+            mlrun.log_figure(fig, "reach.png")
+        record = {"plan": str(plan_path), "method": method, "checksum": plan.checksum,
+                  "checksum_detail": plan.checksum_detail, **summary}
+        write_solution_set(paths, reach.table, record, fig, lambda staged: mlrun.log_artifact(staged["csv"]))
+    log.info("rig %s: %d holes, %d ok by at least one boom (%s) -> %s", rig.name, summary["holes"],
+             summary["ok_by_any"], ", ".join(f"{b}: {summary[b + '.ok']} ok" for b in rig.names), out)
+    if strict and summary["ok_by_none"]:
+        raise SystemExit(f"strict: {summary['ok_by_none']} hole(s) no boom can drill: {summary['holes_ok_by_none']} "
+                         f"(see {out})")
+    return summary
 
 
 def load_solve_boom(boom_cfg, boom_model):
