@@ -488,9 +488,12 @@ class CompiledHybridSolver(HybridSolver):
                  float(s.clearance_weight)))
 
     def refine(self, q0: torch.Tensor, target: torch.Tensor, use_safety: bool,
-               max_iters: int | None = None, owner: torch.Tensor | None = None) -> Candidates:
+               max_iters: int | None = None, owner: torch.Tensor | None = None, others=()) -> Candidates:
         """:meth:`HybridSolver.refine` through :func:`refine_holes`. ``owner`` must list each hole's
-        starts together, in equal numbers (as :meth:`HybridSolver._try` lays them out)."""
+        starts together, in equal numbers (as :meth:`HybridSolver._try` lays them out). The kernels know
+        one boom in its own frame: other booms as obstacles take the torch refinement."""
+        if len(others):
+            return HybridSolver.refine(self, q0, target, use_safety, max_iters, owner, others)
         max_iters = self.s.max_iters if max_iters is None else max_iters
         N = len(q0)
         if owner is None:
@@ -531,8 +534,11 @@ class CompiledHybridSolver(HybridSolver):
             self.init = init
             torch.set_num_threads(threads)
 
-    def solve(self, targets: Targets) -> SolveResult:
-        """The fast path for every hole; the hybrid's cascade (compiled refinements) for the rest."""
+    def solve(self, targets: Targets, obstacles=(), start: torch.Tensor | None = None) -> SolveResult:
+        """The fast path for every hole; the hybrid's cascade (compiled refinements) for the rest. With
+        other booms as obstacles, or given starts, it is the torch hybrid (its kernels know neither)."""
+        if len(obstacles) or start is not None:
+            return HybridSolver.solve(self, targets, obstacles, start)
         if not isinstance(targets, HoleTargets):
             raise InputError(f"{self.name}: solves holes (HoleTargets), got {type(targets).__name__}")
         if len(targets) == 0:
