@@ -252,13 +252,13 @@ def test_a_full_disk_leaves_the_previous_set_whole_and_chunks_solve_alike(study,
     monkeypatch.undo()
     solve.run(make_cfg(tmp, f"plan={plan}", f"out={out}"))  # one chunk
     again, _ = read_solution_set(out)
-    # Chunks change when the solver's batch stops iterating, not the answer: same status, each solution
-    # exact by an independent recomputation, the same branch (LM stops within its tolerance, not bitwise).
+    # Chunks change a hard hole's random starts (they are drawn per batch), so its joints may be another
+    # of its solutions; never its status, and every answer is exact and clear by an independent recomputation.
     joints = [f"q{i}" for i in range(1, 9)]
     assert again["status"].tolist() == table["status"].tolist()
     pose = read_csv_plan(plan).poses(3.3)
     for t in (table, again):
-        assert solution_table(pose, torch.tensor(t[joints].to_numpy(dtype=float)), safety)["hole_mm"].max() <= 0.01
-    assert again[joints].to_numpy() == pytest.approx(table[joints].to_numpy(), abs=1e-5)
+        check = solution_table(pose, torch.tensor(t[joints].to_numpy(dtype=float)), safety)
+        assert check["hole_mm"].max() <= 0.01 and not check["any_violation"].any()
     solve.run(make_cfg(tmp, f"plan={plan}", f"out={out}", "solve.figure=false"))
     assert not out.with_suffix(".png").exists()  # a figure of another run is not left beside this set
