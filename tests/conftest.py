@@ -21,6 +21,18 @@ def safety(jumbo8):
     return build_safety(jumbo8, load_group_file("tunnel", "horseshoe"), load_group_file("safety", "paper"))
 
 
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """One torch thread for a module, as calibrate runs (runtime.calibrate_threads): its tiny batched ops
+    run far faster on one thread than on two contending ones."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
 @pytest.fixture(scope="session")
 def make_cfg():
     """``make_cfg(tmp, *overrides)``: the tiny experiment (conf/experiment/tiny.yaml) writing data, MLflow store

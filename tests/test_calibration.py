@@ -31,13 +31,7 @@ def _joints(boom, n, seed):
     return lo + torch.rand(n, boom.n_joints, generator=g, dtype=torch.float64) * (hi - lo)
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    """The stage's setting (runtime.calibrate_threads): tiny batched ops run far faster on one thread."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # the stage's runtime.calibrate_threads
 
 
 @pytest.fixture(scope="module")

@@ -18,12 +18,7 @@ FIELD = ErrorLevel(angle_deg=0.2, tilt_deg=0.2, offset_mm=5.0)  # the field leve
 TOTAL_STATION = Sensor(1.0, 0.05)  # the instrument the default weights describe
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # the stage's runtime.calibrate_threads
 
 
 def _joints(boom, n, seed):
