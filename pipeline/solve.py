@@ -3,6 +3,7 @@
     python -m pipeline.solve plan=data/plans/demo_face.csv
     python -m pipeline.solve plan=round_42.xml out=round_42_joints.csv strict=true
     python -m pipeline.solve plan=round_42.csv solve.model_uri=models:/boom-ik-cuikm@champion
+    python -m pipeline.solve rig=twin plan=data/plans/demo_face.csv     # a reach table: every hole by every boom
 
 Reads a CSV or IREDES plan (bad rows are reported with their row and id, the good ones solved),
 solves every hole with the hybrid solver (:mod:`pipeline.solvers.hybrid`), and writes
@@ -12,6 +13,11 @@ unreachable; invalid for unreadable rows) and ``method``; plus ``<stem>_solution
 status and the boom where it matters) and ``<stem>_solution.json`` (counts and timing). Logs an
 MLflow run. With ``strict=true`` it exits with status 1 unless every hole is ok. The hybrid's settings
 are the ``solver`` group (conf/solver/hybrid.yaml).
+
+A rig of more than one boom (``rig=twin``, ``rig=trio``) writes a reach table instead
+(:mod:`pipeline.plans.reach`, docs/rig.md): one row per hole and boom, a ``boom`` column, the other
+booms at park; ``strict=true`` then asks every hole to be ok by at least one boom. ``rig=single``
+(the default) is today's path, unchanged.
 """
 
 from __future__ import annotations
@@ -25,14 +31,17 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from pipeline.assembly.build import build_safety, load_boom
+from pipeline.assembly.rig import build_rig
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import configure_process
+from pipeline.core.errors import ConfigError
 from pipeline.core.io import require_writable, save_figure, write_csv, write_json
 from pipeline.core.settings import RuntimeSettings, coerce, parse, rule
 from pipeline.data.holes import joint_box
 from pipeline.evaluation.plots import solution_figure
 from pipeline.learning.network_source import load_network
 from pipeline.plans.model import COLLAR
+from pipeline.plans.reach import reach_figure, reach_table, rig_solvers
 from pipeline.plans.read import read_plan
 from pipeline.plans.solutions import CLEARANCE_COLUMNS, solution_frame, status_counts
 from pipeline.solvers.base import HoleTargets, NetworkSolver
@@ -70,6 +79,9 @@ def run(cfg: DictConfig) -> dict:
     plan_path = project_path(coerce(cfg.plan, "str", "plan"))
     out = project_path(cfg.out) if cfg.get("out") else plan_path.with_name(f"{plan_path.stem}_solution.csv")
     strict = coerce(cfg.get("strict", False), "bool", "strict")
+    rig = build_rig(cfg.rig, cfg.tunnel, cfg.safety)
+    if len(rig) > 1:  # a reach table; one boom keeps today's path and file format
+        return solve_rig(cfg, rig, settings, hybrid, tracking, plan_path, out, strict)
     boom = load_solve_boom(cfg.boom, cfg.get("boom_model"))
     safety = build_safety(boom, cfg.tunnel, cfg.safety)
     source = settings.model_uri or project_path(cfg.paths.data) / "models" / f"{settings.network}.pt"
@@ -105,6 +117,46 @@ def run(cfg: DictConfig) -> dict:
              status_counts(table), out)
     if strict and summary["ok"] != len(table):
         raise SystemExit(f"strict: {len(table) - summary['ok']} of {len(table)} holes are not ok (see {out})")
+    return summary
+
+
+def solve_rig(cfg: DictConfig, rig, settings: SolveSettings, hybrid: HybridSettings, tracking, plan_path, out,
+              strict: bool) -> dict:
+    """Every hole by every boom of ``rig``, the others at park: the reach table, its JSON and figure."""
+    if cfg.get("boom_model"):
+        raise ConfigError(f"boom_model = {cfg.boom_model!r}: a calibrated boom serves one boom; rig '{rig.name}' "
+                          f"({rig.spec.source}) has booms {rig.names}: use rig=single")
+    source = settings.model_uri or project_path(cfg.paths.data) / "models" / f"{settings.network}.pt"
+    plan = read_plan(plan_path, **(asdict(settings.iredes) if plan_path.suffix.lower() == ".xml" else {}))
+    require_writable(out.parent, "out (its folder)")
+    for line in plan.report():
+        log.warning("skipped: %s", line)
+    method = f"hybrid ({settings.model_uri or settings.network})"
+    box = cfg.holes.sup.get("box")
+    with stage_run(tracking, f"solve-{plan_path.stem}-{rig.name}", {"stage": "solve", "plan": str(plan_path),
+                                                                    "rig": rig.name}) as mlrun:
+        mlrun.log_params({"plan": str(plan_path), "rig": rig.name, "solve": as_dict(cfg.solve),
+                          "solver": as_dict(cfg.solver)})
+        def network(boom):  # each boom's first start, checked against its config
+            return NetworkSolver(boom, load_network(source, boom, tracking.uri, "solve.model_uri")[0], settings.network)
+
+        solvers = rig_solvers(rig, network, hybrid, joint_box(rig.booms[0].boom, None if box is None else as_dict(box)))
+        reach = reach_table(plan, rig, solvers, method)
+        summary = {"rig": rig.name, "booms": rig.names, "invalid_rows": invalid_rows(plan), **reach.summary()}
+        write_csv(reach.table, out)
+        write_json({"plan": str(plan_path), "method": method, **summary}, out.with_suffix(".json"))
+        mlrun.log_metrics({k: v for k, v in summary.items() if isinstance(v, (int, float))})
+        mlrun.log_table(reach.table, "reach.json")
+        mlrun.log_artifact(out)
+        if settings.figure:
+            fig = reach_figure(reach, plan, rig)
+            save_figure(fig, out.with_suffix(".png"))
+            mlrun.log_figure(fig, "reach.png")
+    log.info("rig %s: %d holes, %d ok by at least one boom (%s) -> %s", rig.name, summary["holes"],
+             summary["ok_by_any"], ", ".join(f"{b}: {summary[b + '.ok']} ok" for b in rig.names), out)
+    if strict and summary["ok_by_none"]:
+        raise SystemExit(f"strict: {summary['ok_by_none']} hole(s) no boom can drill: {summary['holes_ok_by_none']} "
+                         f"(see {out})")
     return summary
 
 

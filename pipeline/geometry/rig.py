@@ -95,6 +95,13 @@ def load_rig_spec(name: str) -> RigSpec:
     return parse_rig(load_group_file("rig", name), rig_file(name))
 
 
+def translate_frames(frames: torch.Tensor, offset: torch.Tensor) -> torch.Tensor:
+    """Frames ``(..., F, 4, 4)`` with every origin moved by ``offset (3,)``: a boom's base frame into the
+    rig frame. Rotations, hence joint axes and every Jacobian, are unchanged."""
+    origin = frames[..., :3, 3] + offset
+    return torch.cat([torch.cat([frames[..., :3, :3], origin.unsqueeze(-1)], -1), frames[..., 3:, :]], -2)
+
+
 class MountedBoom:
     """One boom of a rig: its chain, its base offset and its safety model, all in the rig frame.
 
@@ -117,8 +124,7 @@ class MountedBoom:
 
     def to_rig(self, frames: torch.Tensor) -> torch.Tensor:
         """Frames ``(..., F, 4, 4)`` of the boom's base frame, in the rig frame (origins + base)."""
-        origin = frames[..., :3, 3] + self._offset(frames.dtype, frames.device)
-        return torch.cat([torch.cat([frames[..., :3, :3], origin.unsqueeze(-1)], -1), frames[..., 3:, :]], -2)
+        return translate_frames(frames, self._offset(frames.dtype, frames.device))
 
     def frames(self, q: torch.Tensor) -> torch.Tensor:
         """Every frame of the chain at joints ``q`` (own base frame), in the rig frame."""

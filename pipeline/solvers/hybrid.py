@@ -22,6 +22,14 @@ as a constraint, and an honest status for every hole.
 
    Every hole keeps its best joints and their clearances; nothing is dropped.
 
+**Other booms of a rig** (:class:`BoomObstacle`): a boom of a rig is solved in the rig frame (its
+``base`` offset moves its frames there, so the tunnel is seen from its base and the target is in the rig
+frame, while the joints stay in its own base frame). Booms standing where given are obstacles: each adds
+one clearance, the boom-boom one (:class:`pipeline.geometry.boom_pair.BoomPair`: smallest capsule distance
+less d_boom), with its row ``w (c - margin)`` active below ``margin`` like the others, its analytic
+gradient with respect to the solved boom's joints, and its place in the ok rule (every clearance >= 0).
+Without a base and obstacles the solver runs exactly as before (same operations, same numbers).
+
 Joints whose range spans a full turn (jumbo8's boom rotation and roll-over) wrap around instead of
 stopping at +-180 deg; the others are projected onto their limits.
 """
@@ -30,14 +38,17 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import torch
 
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.core.settings import rule
+from pipeline.geometry.boom_pair import BoomPair
 from pipeline.geometry.collision import SAFETY_KINDS, SafetyModel
 from pipeline.geometry.kinematics import pose_errors
+from pipeline.geometry.rig import translate_frames
 from pipeline.optim.least_squares import Damping, Evaluation, least_squares, projector
 from pipeline.solvers.base import HoleTargets, JointSpace, Solver, SolveResult, Targets
 
@@ -101,11 +112,23 @@ class Candidates:
                                        for g in groups], dim=1).flatten(0, 1) for name in Candidates.FIELDS))
 
 
+@dataclass(frozen=True)
+class BoomObstacle:
+    """Another boom of the rig standing still: ``pair`` has the solved boom as its boom ``a``; ``frames``
+    are the other boom's frames in the rig frame, ``(F, 4, 4)`` for every hole or ``(H, F, 4, 4)`` one
+    stand per hole (:meth:`pipeline.geometry.rig.MountedBoom.frames`)."""
+
+    pair: BoomPair
+    frames: torch.Tensor
+    name: str = "other boom"
+
+
 class HybridSolver(Solver):
     name = "hybrid"
 
     def __init__(self, boom, safety: SafetyModel, init: Solver | None, settings: HybridSettings = HybridSettings(),
-                 name: str = "hybrid", start_box: tuple[torch.Tensor, torch.Tensor] | None = None):
+                 name: str = "hybrid", start_box: tuple[torch.Tensor, torch.Tensor] | None = None,
+                 base: Sequence[float] | None = None):
         super().__init__(boom)
         if safety.boom is not boom:
             raise InputError(f"{name}: the safety model belongs to boom '{safety.boom.name}', not '{boom.name}'")
@@ -118,13 +141,23 @@ class HybridSolver(Solver):
         lo, hi = start_box if start_box is not None else (self.space.full(self.space.lower[None])[0],
                                                           self.space.full(self.space.upper[None])[0])
         self.start_lo, self.start_hi = lo[self.space.free].double(), hi[self.space.free].double()
+        # a rig's boom: its base in the rig frame (m); frames, targets and clearances are in the rig frame
+        self.base = None if base is None else torch.tensor([float(v) for v in base], dtype=torch.float64)
+        if self.base is not None and self.base.shape != (3,):
+            raise InputError(f"{name}: base = {list(base)!r}: expected [x, y, z] (m)")
+
+    def _frames(self, q: torch.Tensor) -> torch.Tensor:
+        frames = self.boom.frames(q)
+        return frames if self.base is None else translate_frames(frames, self.base.to(frames.dtype))
 
     # ------------------------------------------------------------------ one LM run per start
-    def _clearances(self, frames: torch.Tensor) -> torch.Tensor:
+    def _clearances(self, frames: torch.Tensor, others: Sequence = ()) -> torch.Tensor:
+        """``(B, 4 + k)``: the four safety clearances, then one boom-boom clearance per ``(pair, frames (B, ...))``."""
         values = self.safety.clearances_from_frames(frames)
-        return torch.stack([values[k] for k in SAFETY_KINDS], dim=-1)
+        return torch.stack([values[k] for k in SAFETY_KINDS] + [pair.clearance(frames, f) for pair, f in others],
+                           dim=-1)
 
-    def _rows(self, x: torch.Tensor, target: torch.Tensor, c_prev: torch.Tensor | None):
+    def _rows(self, x: torch.Tensor, target: torch.Tensor, c_prev: torch.Tensor | None, others: Sequence = ()):
         """Stacked residual ``(B, m)``, its Jacobian ``(B, m, n)``, hole error ``(B,)``, clearances
         ``(B, 4)`` and whether they were measured at ``x`` (``(B,)``).
 
@@ -132,46 +165,50 @@ class HybridSolver(Solver):
         measured only where the last measurement ``c_prev`` was within ``guard`` of a safety distance:
         one refinement step moves the boom by millimetres, so a boom far from every surface stays clear
         and pays for no clearance evaluation; every answer's clearances are measured again at the end.
-        Clearance gradients are computed only where a clearance row is active (below ``margin``)."""
+        Clearance gradients are computed only where a clearance row is active (below ``margin``).
+        ``others``: ``(pair, frames (B, F, 4, 4))`` per standing boom, each adding a boom-boom column."""
         s, n = self.s, self.space.n
-        frames = self.boom.frames(self.space.full(x))
+        frames = self._frames(self.space.full(x))
         r = self.boom.pose6_from_frames(frames) - target
         J = self.boom.pose6_jacobian(frames)[..., self.space.free]
         hole = 0.5 * (r[:, :3].norm(dim=-1) + r[:, 3:].norm(dim=-1))
         if c_prev is None:
-            unmeasured = torch.full((len(x), len(SAFETY_KINDS)), math.nan, dtype=r.dtype)
+            unmeasured = torch.full((len(x), len(SAFETY_KINDS) + len(others)), math.nan, dtype=r.dtype)
             return r, J, hole, unmeasured, torch.zeros_like(hole, dtype=torch.bool)
         fresh = c_prev.min(dim=-1).values < s.guard
         c = c_prev.clone()
         near = fresh.nonzero().flatten()
         if len(near):
-            c[near] = self._clearances(frames[near])
+            c[near] = self._clearances(frames[near], [(p, f[near]) for p, f in others])
         active = c < s.margin
         w = s.clearance_weight * active.to(c.dtype)
         G = torch.zeros(*c.shape, n, dtype=c.dtype)
         rows = active.any(dim=-1).nonzero().flatten()
         if len(rows):
             _, grads = self.safety.clearances_with_jacobians(frames[rows])
-            G[rows] = torch.stack([grads[k] for k in SAFETY_KINDS], dim=-2)[..., self.space.free]
+            g = [grads[k] for k in SAFETY_KINDS]
+            g += [p.clearance_with_jacobians(frames[rows], f[rows])[1] for p, f in others]  # w.r.t. this boom
+            G[rows] = torch.stack(g, dim=-2)[..., self.space.free]
         r = torch.cat([r, w * (c - s.margin)], dim=-1)
         J = torch.cat([J, w.unsqueeze(-1) * G], dim=-2)
         return r, J, hole, c, fresh
 
     def refine(self, q0: torch.Tensor, target: torch.Tensor, use_safety: bool,
-               max_iters: int | None = None, owner: torch.Tensor | None = None) -> Candidates:
+               max_iters: int | None = None, owner: torch.Tensor | None = None, others: Sequence = ()) -> Candidates:
         """Levenberg-Marquardt from ``q0 (N, n_joints)`` towards ``target (N, 6)``; each start stops
         on its own once exact (and, with ``use_safety``, clear), so the batch shrinks as it goes.
         ``owner (N,)``: which hole each start serves; once one start of a hole is done, the hole's
         other starts stop where they are (one ok answer is what a hole needs).
+        ``others``: ``(pair, frames (N, F, 4, 4))`` per standing boom, one stand per start.
         The returned clearances are measured at the returned joints, always."""
         s = self.s
         max_iters = s.max_iters if max_iters is None else max_iters
         stop_tol = 1e-2 * s.tol_mm / 1000  # iterate well below the status tolerance: converged, not borderline
         tgt = target.double()
-        measure_all = torch.full((len(q0), len(SAFETY_KINDS)), -math.inf, dtype=torch.float64)
+        measure_all = torch.full((len(q0), len(SAFETY_KINDS) + len(others)), -math.inf, dtype=torch.float64)
 
         def evaluate(x, rows, c_prev) -> Evaluation:
-            r, J, hole, c, fresh = self._rows(x, tgt[rows], c_prev)
+            r, J, hole, c, fresh = self._rows(x, tgt[rows], c_prev, [(p, f[rows]) for p, f in others])
             return Evaluation(r, J, {"hole": hole, "c": c, "fresh": fresh})
 
         def fun(x, rows, current: Evaluation | None) -> Evaluation:
@@ -195,7 +232,8 @@ class HybridSolver(Solver):
         r_out, c_out = out.evaluation.r[:, :6], extra["c"]
         stale = (~extra["fresh"]).nonzero().flatten()
         if len(stale):  # the answer's own clearances, wherever the loop reused older ones
-            c_out[stale] = self._clearances(self.boom.frames(self.space.full(x_out[stale])))
+            c_out[stale] = self._clearances(self._frames(self.space.full(x_out[stale])),
+                                            [(p, f[stale]) for p, f in others])
         hole_out = 0.5 * (r_out[:, :3].norm(dim=-1) + r_out[:, 3:].norm(dim=-1))
         return Candidates(self.space.full(x_out), hole_out, c_out, out.trials, r_out)
 
@@ -248,14 +286,16 @@ class HybridSolver(Solver):
         return space.full(self.project(x))
 
     def _try(self, best: Candidates, status: torch.Tensor, todo: torch.Tensor, starts: torch.Tensor,
-             pose: torch.Tensor, reference: torch.Tensor, use_safety: bool, max_iters: int | None = None) -> None:
+             pose: torch.Tensor, reference: torch.Tensor, use_safety: bool, max_iters: int | None = None,
+             others: Sequence = ()) -> None:
         """Refine ``starts (len(todo), K, n)`` of the holes ``todo`` in one batch; each hole keeps the
         best of its current answer and the new candidates (in place)."""
         H, K, n = starts.shape
         if H == 0 or K == 0:
             return
         new = self.refine(starts.reshape(H * K, n), pose[todo].repeat_interleave(K, dim=0), use_safety, max_iters,
-                          owner=torch.arange(H).repeat_interleave(K))
+                          owner=torch.arange(H).repeat_interleave(K),
+                          others=[(p, f[todo].repeat_interleave(K, dim=0)) for p, f in others])
         chosen, chosen_status = self.best_of(Candidates.per_hole([best.take(todo), new], H), H, reference[todo])
         best.put(todo, chosen)
         status[todo] = chosen_status
@@ -271,44 +311,78 @@ class HybridSolver(Solver):
         preview = collar + self.boom.preview_depth * axis / length.clamp_min(1e-12)
         return torch.cat([collar, torch.where(length > 1e-9, preview, pose[:, 3:])], dim=-1)
 
-    def solve(self, targets: Targets) -> SolveResult:
+    def _obstacles(self, obstacles: Sequence[BoomObstacle], holes: int) -> list:
+        """``(pair, frames (holes, F, 4, 4))`` per obstacle, checked."""
+        out = []
+        for o in obstacles:
+            if not isinstance(o, BoomObstacle) or o.pair.a is not self.boom:
+                raise InputError(f"{self.name}: obstacle {getattr(o, 'name', o)!r}: expected a BoomObstacle whose "
+                                 f"pair has this solver's boom '{self.boom.name}' as its boom a")
+            f = o.frames.to(torch.float64)
+            if f.ndim == 3:
+                f = f.expand(holes, *f.shape)
+            if f.ndim != 4 or f.shape[0] != holes or f.shape[-2:] != (4, 4):
+                raise InputError(f"{self.name}: obstacle '{o.name}': frames of shape {tuple(o.frames.shape)}; "
+                                 f"expected (F, 4, 4) or ({holes}, F, 4, 4)")
+            out.append((o.pair, f))
+        return out
+
+    def solve(self, targets: Targets, obstacles: Sequence[BoomObstacle] = (),
+              start: torch.Tensor | None = None) -> SolveResult:
         """First the network's answers, refined on the pose alone: a hole whose answer is then exact
         and clear by at least ``margin`` is done (most holes: one clearance evaluation each). The
         others are refined from the network's answer with the safety rows; for those still not ok:
         perturbed starts, random starts, many random starts with a longer budget, and finally random
         starts without the safety rows (can the pose be reached at all?). Each stage sees only the
-        holes the previous ones left, so the batch pays for the hard holes alone."""
+        holes the previous ones left, so the batch pays for the hard holes alone.
+
+        ``targets`` are in the rig frame when the solver has a ``base`` (the network, trained in the boom's
+        base frame, sees them shifted back). ``obstacles``: other booms standing, as obstacles (their
+        boom-boom clearance is ``clearances["boom"]``, the smallest over them). ``start (H, n_joints)``:
+        each hole's first start instead of the network's answer (e.g. the previous hole's joints); with
+        ``prefer: start`` the ok solution nearest to it is kept, so redundancy serves the next move."""
         if not isinstance(targets, HoleTargets):
             raise InputError(f"{self.name}: solves holes (HoleTargets), got {type(targets).__name__}")
         if len(targets) == 0:
             raise InputError(f"{self.name}: no targets to solve")
-        start = time.perf_counter()
+        clock = time.perf_counter()
         with torch.inference_mode():  # no autograd bookkeeping: a fifth of a single hole's time
             pose = targets.pose.double()
             target = self.consistent(pose)
-            q_net = (self.init.joints(targets) if self.init is not None
-                     else self.space.full((0.5 * (self.space.lower + self.space.upper)).expand(len(pose), -1)))
-            best = self.refine(q_net, target, use_safety=False)
+            others = self._obstacles(obstacles, len(pose))
+            if start is not None:
+                q_net = self.boom.check_joints(start, "start").double().expand(len(pose), -1).clone()
+            elif self.init is not None:
+                own = targets if self.base is None else HoleTargets(pose - self.base.repeat(2), targets.depth)
+                q_net = self.init.joints(own)
+            else:
+                q_net = self.space.full((0.5 * (self.space.lower + self.space.upper)).expand(len(pose), -1))
+            best = self.refine(q_net, target, use_safety=False, others=others)
             status, _ = self.rank(best)
             spare = best.clearances.min(dim=-1).values >= self.s.margin
             todo = ((status != 0) | ~spare).nonzero().flatten()
-            self._try(best, status, todo, q_net[todo].unsqueeze(1), target, q_net, use_safety=True)
+            self._try(best, status, todo, q_net[todo].unsqueeze(1), target, q_net, use_safety=True, others=others)
             todo = (status != 0).nonzero().flatten()
             if len(todo):
-                self._try(best, status, todo, self.starts(q_net[todo], "perturbed"), target, q_net, use_safety=True)
+                self._try(best, status, todo, self.starts(q_net[todo], "perturbed"), target, q_net, use_safety=True,
+                          others=others)
                 todo = (status != 0).nonzero().flatten()
-                self._try(best, status, todo, self.starts(q_net[todo], "random"), target, q_net, use_safety=True)
+                self._try(best, status, todo, self.starts(q_net[todo], "random"), target, q_net, use_safety=True,
+                          others=others)
                 todo = (status != 0).nonzero().flatten()
                 self._try(best, status, todo, self.starts(q_net[todo], "deep"), target, q_net, use_safety=True,
-                          max_iters=self.s.deep_iters)
+                          max_iters=self.s.deep_iters, others=others)
                 todo = (status != 0).nonzero().flatten()
-                self._try(best, status, todo, self.starts(q_net[todo], "random"), target, q_net, use_safety=False)
-        wall = time.perf_counter() - start
+                self._try(best, status, todo, self.starts(q_net[todo], "random"), target, q_net, use_safety=False,
+                          others=others)
+        wall = time.perf_counter() - clock
         best = best.map(torch.clone)  # ordinary tensors again: callers may use them with autograd
         target, pose = target.clone(), pose.clone()
         err = pose_errors(target + best.residual, pose)  # the reached pose against the target as given
         errors = {"position": err["start"], "orientation": err["direction"], "preview": err["preview"],
                   "hole": err["hole"]}
         clearances = {k: best.clearances[:, i] for i, k in enumerate(SAFETY_KINDS)}
+        if others:  # the nearest standing boom
+            clearances["boom"] = best.clearances[:, len(SAFETY_KINDS):].min(dim=-1).values
         return SolveResult(best.q, errors, best.iterations, wall,
                            status=[STATUSES[i] for i in status.tolist()], clearances=clearances)

@@ -1,0 +1,90 @@
+"""Stage ``move_benchmark``: collision-free moves of a rig's booms on a plan, and what redundancy saves.
+
+    python -m pipeline.move_benchmark rig=twin                          # 200 seeded pairs per boom
+    python -m pipeline.move_benchmark rig=twin move_benchmark.pairs=1000  # the issue's 1000
+
+Solves the plan (``plan``, the demo face by default) by every boom of the rig (the reach table, the
+others at park; network ``solve.network``, hybrid ``solver``), then measures (pipeline/motion/benchmark.py):
+moves between random pairs of each boom's ok holes with every other boom standing at a random ok hole
+of its own; chained against independent solutions (summed move time); boom-boom clearances per second.
+Writes ``paths.data/benchmark/moves_<rig>.csv`` (one row per pair), ``redundancy_<rig>.csv`` and
+``moves_<rig>.json`` (the summary), and logs them to MLflow. Product side: no study stage imports it.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import hydra
+from omegaconf import DictConfig
+
+from pipeline.assembly.rig import build_rig
+from pipeline.core.config import as_dict, project_path
+from pipeline.core.device import configure_process
+from pipeline.core.errors import ConfigError
+from pipeline.core.io import write_csv, write_json
+from pipeline.core.settings import RuntimeSettings, coerce, parse
+from pipeline.data.holes import joint_box
+from pipeline.learning.network_source import load_network
+from pipeline.motion.benchmark import MoveBenchmarkSettings, distance_rate, move_benchmark, redundancy
+from pipeline.motion.timing import load_motion
+from pipeline.plans.reach import reach_table, rig_solvers
+from pipeline.plans.read import read_plan
+from pipeline.solvers.base import NetworkSolver
+from pipeline.solvers.hybrid import HybridSettings
+from pipeline.tracking.runs import TrackingSettings, stage_run
+
+log = logging.getLogger(__name__)
+
+
+def run(cfg: DictConfig) -> dict:
+    settings = parse(MoveBenchmarkSettings, as_dict(cfg.move_benchmark), "move_benchmark")
+    hybrid = parse(HybridSettings, cfg.solver, "solver")
+    tracking = TrackingSettings.from_config(cfg.tracking)
+    rig = build_rig(cfg.rig, cfg.tunnel, cfg.safety)
+    if len(rig) < 2:
+        raise ConfigError(f"rig = {rig.name!r} ({rig.spec.source}) has one boom; the move benchmark stands another "
+                          "boom in the way: use rig=twin or rig=trio")
+    plan_path = project_path(coerce(cfg.plan, "str", "plan"))
+    plan = read_plan(plan_path)
+    network = coerce(cfg.solve.network, "str", "solve.network")
+    source = cfg.solve.get("model_uri") or project_path(cfg.paths.data) / "models" / f"{network}.pt"
+    out = project_path(cfg.paths.data) / "benchmark"
+    box = cfg.holes.sup.get("box")
+    with stage_run(tracking, f"move-benchmark-{rig.name}", {"stage": "move_benchmark", "rig": rig.name}) as mlrun:
+        mlrun.log_params({"plan": str(plan_path), "rig": rig.name, "move_benchmark": as_dict(cfg.move_benchmark),
+                          "solver": as_dict(cfg.solver), "network": str(source)})
+        def first_start(boom):
+            return NetworkSolver(boom, load_network(source, boom, tracking.uri, "solve.model_uri")[0], network)
+
+        start_box = joint_box(rig.booms[0].boom, None if box is None else as_dict(box))
+        solvers = rig_solvers(rig, first_start, hybrid, start_box)
+        reach = reach_table(plan, rig, solvers, f"hybrid ({network})")
+        limits = [load_motion(m.boom).joints for m in rig.booms]
+        rates = distance_rate(rig, settings)
+        saved = redundancy(rig, plan, reach, solvers, limits)
+        started = time.perf_counter()
+        moves, summary = move_benchmark(rig, plan, reach, solvers, limits, settings)
+        summary = {"rig": rig.name, "plan": str(plan_path), "pairs_per_boom": settings.pairs,
+                   "wall_s": time.perf_counter() - started, **summary, **rates,
+                   "redundancy": saved.to_dict(orient="records")}
+        write_csv(moves, out / f"moves_{rig.name}.csv")
+        write_csv(saved, out / f"redundancy_{rig.name}.csv")
+        write_json(summary, out / f"moves_{rig.name}.json")
+        mlrun.log_metrics({k: v for k, v in summary.items() if isinstance(v, (int, float))})
+        mlrun.log_table(moves, "moves.json")
+        mlrun.log_table(saved, "redundancy.json")
+    log.info("moves of rig %s: %s; redundancy: %s", rig.name,
+             {k: round(v, 3) for k, v in summary.items() if k.startswith("all.")}, saved.to_dict(orient="records"))
+    return summary
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+def main(cfg: DictConfig) -> None:
+    configure_process(RuntimeSettings.from_config(cfg).threads)
+    run(cfg)
+
+
+if __name__ == "__main__":
+    main()
