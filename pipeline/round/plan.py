@@ -1,5 +1,8 @@
 """Plan a round: route, time with waits, feed the conflicts back into the routing, repeat.
 
+0. the spec's baselines (naive, nearest) are timed with the same conflict handling; the better one
+   is the first candidate and the routing's initial solution (so the optimised round is never worse
+   than the better baseline);
 1. :func:`pipeline.round.routing.route` allocates and orders the holes (makespan, no conflicts known);
 2. :func:`pipeline.round.timeline.resolve` times the routes and inserts waits until no boom-boom
    conflict is left (or falls back to one boom at a time, checked);
@@ -35,6 +38,9 @@ class RoundPlan:
     penalised: dict = field(default_factory=dict)  # hole pairs fed back -> seconds
     apart: list = field(default_factory=list)  # (i, a, j, b) fed back
     planning_s: float = 0.0
+    seed: str | None = None  # the baseline the routing started from (also a candidate round)
+    kept_seed: bool = False  # no routing solve beat the seed: the round is the seed baseline's
+    baselines: dict = field(default_factory=dict)  # kind -> its timeline (the same conflict handling)
 
 
 def _better(a: Timeline, b: Timeline | None) -> bool:
@@ -45,10 +51,17 @@ def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callab
                time_limit_s: float | None = None) -> RoundPlan:
     t0 = time.perf_counter()
     say = progress or (lambda _msg: None)
-    r = route(inst, settings, time_limit_s=time_limit_s)
+    best, seed, done = None, None, {}
+    if seeded(inst):  # the spec's baselines, timed: the routing starts from the better one, and it is a candidate
+        for kind in ("naive", "nearest"):
+            tl = done[kind] = baseline(inst, oracle, kind, settings)
+            say(f"seed {kind}: makespan {tl.makespan:.1f} s, {tl.conflicts_left} conflicts left")
+            if _better(tl, best):
+                best, seed = tl, kind
+    r = route(inst, settings, time_limit_s=time_limit_s, initial=None if best is None else best.routes)
     penalised: dict[tuple[int, int], float] = {}
     apart: set[tuple[int, int, int, int]] = set()
-    best, rounds = None, 1
+    rounds = 1
     for it in range(settings.reopt_rounds + 1):
         tl = resolve(inst, r.routes, oracle, settings.max_repairs)
         say(f"round {it}: makespan {tl.makespan:.1f} s, {len(tl.repairs)} waits, {tl.conflicts_left} conflicts left")
@@ -71,10 +84,19 @@ def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callab
         r = route(inst, settings, same_boom=penalised, apart=sorted(apart), initial=r.routes,
                   time_limit_s=time_limit_s)
         rounds += 1
-    return RoundPlan(best, r.left_out, lower_bound(inst), rounds, penalised, sorted(apart), time.perf_counter() - t0)
+    return RoundPlan(best, r.left_out, lower_bound(inst), rounds, penalised, sorted(apart), time.perf_counter() - t0,
+                     seed, best is not None and seed is not None and best.routes == seed_routes(inst, seed), done)
+
+
+def seeded(inst: Instance) -> bool:
+    """Whether the instance carries what the baselines need (collars, base y, park points)."""
+    return inst.collars is not None and inst.base_y is not None and inst.park_points is not None
+
+
+def seed_routes(inst: Instance, kind: str) -> list[list[int]]:
+    return {"naive": naive_routes, "nearest": nearest_routes}[kind](inst)
 
 
 def baseline(inst: Instance, oracle, kind: str, settings: RoundSettings) -> Timeline:
     """The spec's ``naive`` or ``nearest`` round, with the same conflict handling."""
-    routes = {"naive": naive_routes, "nearest": nearest_routes}[kind](inst)
-    return resolve(inst, routes, oracle, settings.max_repairs)
+    return resolve(inst, seed_routes(inst, kind), oracle, settings.max_repairs)
