@@ -7,6 +7,7 @@ boom's SafetyModel. Drilling times are the spec's formula by hand.
 """
 
 import json
+import shutil
 import signal
 import sqlite3
 import subprocess
@@ -189,3 +190,16 @@ def test_sigterm_leaves_no_half_written_output_and_no_running_run(face_plan):
     left = [p.name for p in Path(tmp).iterdir() if p.name.startswith((".term_round.", "term_round", "term_traj"))
             and not p.name.endswith(".lock")]
     assert not left, left
+
+
+@pytest.mark.skipif(shutil.which("chromium") is None and shutil.which("chromium-browser") is None,
+                    reason="no chromium (apt-get install -y chromium)")
+def test_replay_renders_in_a_headless_browser(small_round):
+    tmp, _, _, _ = small_round
+    sys.path.insert(0, str(PROJECT_ROOT / "scripts"))
+    try:
+        from check_replay import check
+    finally:
+        sys.path.pop(0)
+    problems = check(tmp / "small_round_replay.html", tmp / "replay.png")
+    assert not problems, problems

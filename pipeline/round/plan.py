@@ -20,7 +20,9 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+
+import numpy as np
 
 from pipeline.round.baselines import naive_routes, nearest_routes
 from pipeline.round.bounds import lower_bound
@@ -58,7 +60,11 @@ def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callab
             say(f"seed {kind}: makespan {tl.makespan:.1f} s, {tl.conflicts_left} conflicts left")
             if _better(tl, best):
                 best, seed = tl, kind
-    r = route(inst, settings, time_limit_s=time_limit_s, initial=None if best is None else best.routes)
+    blocked = park_blocked(inst, oracle) if settings.blocked_penalty_s > 0 and inst.n_booms > 1 else None
+    costed = inst if blocked is None else replace(inst, move_s=inst.move_s + settings.blocked_penalty_s * blocked)
+    if blocked is not None:
+        say(f"moves blocked by another boom at park: {int(blocked.sum())} of {blocked.size} (penalised in the routing)")
+    r = route(costed, settings, time_limit_s=time_limit_s, initial=None if best is None else best.routes)
     penalised: dict[tuple[int, int], float] = {}
     apart: set[tuple[int, int, int, int]] = set()
     rounds = 1
@@ -81,11 +87,33 @@ def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callab
             break
         penalised.update(new)
         apart |= new_apart
-        r = route(inst, settings, same_boom=penalised, apart=sorted(apart), initial=r.routes,
+        r = route(costed, settings, same_boom=penalised, apart=sorted(apart), initial=r.routes,
                   time_limit_s=time_limit_s)
         rounds += 1
     return RoundPlan(best, r.left_out, lower_bound(inst), rounds, penalised, sorted(apart), time.perf_counter() - t0,
                      seed, best is not None and seed is not None and best.routes == seed_routes(inst, seed), done)
+
+
+def park_blocked(inst: Instance, oracle) -> np.ndarray:
+    """``(B, H + 1, H + 1)`` bool: boom a's straight move u -> v conflicts with some other boom standing at
+    its park (the oracle's rule). Such a move can never run while that boom is home (at the start or
+    the end of the round), and waits cannot part them; the routing pays ``blocked_penalty_s`` for each."""
+    B, H = inst.n_booms, inst.n_holes
+    bad = np.zeros((B, H + 1, H + 1), bool)
+    park = {"t0": 0.0, "t1": np.inf, "u": H, "v": H, "k": -1}
+    for a in range(B):
+        ok = np.concatenate([inst.reach[a], [True]])
+        u, v = np.nonzero(ok[:, None] & ok[None, :] & ~np.eye(H + 1, dtype=bool))
+        dur = inst.move_s[a, u, v]
+        mv = {"t0": np.zeros(len(u)), "t1": dur, "u": u, "v": v, "k": np.zeros(len(u), int)}
+        for b in range(B):
+            if b == a or not len(u):
+                continue
+            other = {k: np.full(len(u), x) for k, x in park.items()}
+            lo = np.zeros(len(u))
+            first, _ = oracle.check(a, mv, b, other, lo, dur) if a < b else oracle.check(b, other, a, mv, lo, dur)
+            bad[a, u, v] |= np.isfinite(first)
+    return bad
 
 
 def seeded(inst: Instance) -> bool:
