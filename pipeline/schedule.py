@@ -63,6 +63,10 @@ class ScheduleSettings:
     replay: bool = True
     replay_frames: int = field(default=120, metadata=rule(ge=2))
     check_moves: bool = True
+    benchmark: bool = False  # true: the round benchmark (faces x rigs) instead of one plan
+    bench_faces: list = field(default_factory=lambda: ["demo", 50, 100, 150])
+    bench_rigs: list = field(default_factory=lambda: ["single", "twin", "trio"])
+    bench_seed: int = 0
 
 
 def outputs(plan_path: Path, out) -> dict[str, Path]:
@@ -97,6 +101,8 @@ def _progress(enabled: bool):
 
 def run(cfg: DictConfig) -> dict:
     settings = parse(ScheduleSettings, cfg.schedule, "schedule")
+    if settings.benchmark:
+        return run_benchmark(cfg, settings)
     round_settings = parse_round(as_dict(cfg.round), "round")
     hybrid = parse(HybridSettings, cfg.solver, "solver")
     tracking = TrackingSettings.from_config(cfg.tracking)
@@ -175,6 +181,40 @@ def run(cfg: DictConfig) -> dict:
              "%.1f s -> %s", rig.name, summary["holes_drilled"], summary["makespan_s"], summary["lower_bound_s"],
              summary["naive_makespan_s"], summary["nearest_makespan_s"], summary["planning_s"], files["round"])
     return summary
+
+
+def run_benchmark(cfg: DictConfig, settings: ScheduleSettings) -> dict:
+    """``schedule.benchmark=true``: :func:`pipeline.round.benchmark.round_benchmark` into
+    ``paths.data/benchmark/round_benchmark.{csv,md}`` and one MLflow run."""
+    from pipeline.round.benchmark import markdown, round_benchmark
+
+    round_settings = parse_round(as_dict(cfg.round), "round")
+    hybrid = parse(HybridSettings, cfg.solver, "solver")
+    tracking = TrackingSettings.from_config(cfg.tracking)
+    folder = require_writable(project_path(cfg.paths.data) / "benchmark", "paths.data/benchmark")
+    source = None
+    if settings.network or settings.model_uri:
+        source = settings.model_uri or project_path(cfg.paths.data) / "models" / f"{settings.network}.pt"
+
+    def first_start(boom):
+        if source is None:
+            return None
+        return NetworkSolver(boom, load_network(source, boom, tracking.uri, "schedule.model_uri")[0],
+                             settings.network or "model")
+
+    with stage_run(tracking, "schedule-benchmark", {"stage": "schedule", "mode": "benchmark"}) as mlrun:
+        mlrun.log_params({"schedule": asdict(settings), "round": as_dict(cfg.round), "solver": as_dict(cfg.solver)})
+        table = round_benchmark(settings.bench_faces, settings.bench_rigs, cfg.tunnel, cfg.safety, hybrid,
+                                round_settings, first_start, settings.bench_seed, lambda m: log.info("%s", m))
+        write_csv(table, folder / "round_benchmark.csv")
+        write_text(markdown(table), folder / "round_benchmark.md")
+        mlrun.log_table(table, "round_benchmark.json")
+        for _, r in table.iterrows():
+            key = f"{r['rig']}.{r['face'].split(' (')[0].replace(' ', '')}"
+            mlrun.log_metrics({f"{key}.{k}": float(r[k]) for k in ("makespan_s", "lower_bound_s", "ratio", "naive_s",
+                                                                    "nearest_s", "planning_s")})
+    log.info("round benchmark:\n%s", markdown(table))
+    return {"rows": len(table)}
 
 
 def metrics(summary: dict) -> dict:
