@@ -60,6 +60,10 @@ def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callab
             say(f"seed {kind}: makespan {tl.makespan:.1f} s, {tl.conflicts_left} conflicts left")
             if _better(tl, best):
                 best, seed = tl, kind
+            alt = reversed_variant(inst, oracle, settings, tl.routes)
+            if alt is not None and _better(alt, best):
+                say(f"seed {kind}, one boom reversed: makespan {alt.makespan:.1f} s, {alt.conflicts_left} conflicts")
+                best, seed = alt, f"{kind} (one boom reversed)"
     blocked = park_blocked(inst, oracle) if settings.blocked_penalty_s > 0 and inst.n_booms > 1 else None
     costed = inst if blocked is None else replace(inst, move_s=inst.move_s + settings.blocked_penalty_s * blocked)
     if blocked is not None:
@@ -73,6 +77,10 @@ def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callab
         say(f"round {it}: makespan {tl.makespan:.1f} s, {len(tl.repairs)} waits, {tl.conflicts_left} conflicts left")
         if _better(tl, best):
             best = tl
+        alt = reversed_variant(inst, oracle, settings, r.routes)
+        if alt is not None and _better(alt, best):
+            say(f"round {it}, one boom reversed: makespan {alt.makespan:.1f} s, {alt.conflicts_left} conflicts left")
+            best = alt
         new, new_apart = {}, set()
         for rec in tl.repairs:
             (i, j), (a, b) = rec["nodes"], rec["booms"]
@@ -87,11 +95,36 @@ def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callab
             break
         penalised.update(new)
         apart |= new_apart
-        r = route(costed, settings, same_boom=penalised, apart=sorted(apart), initial=r.routes,
+        r = route(costed, settings, same_boom=penalised, apart=sorted(apart), initial=best.routes,
                   time_limit_s=time_limit_s)
         rounds += 1
     return RoundPlan(best, r.left_out, lower_bound(inst), rounds, penalised, sorted(apart), time.perf_counter() - t0,
-                     seed, best is not None and seed is not None and best.routes == seed_routes(inst, seed), done)
+                     seed, best is not None and seed is not None and best.routes in (
+                         seed_routes(inst, seed.split(" ")[0]),
+                         *(_reverse_one(seed_routes(inst, seed.split(" ")[0]), b) for b in range(inst.n_booms))), done)
+
+
+def _reverse_one(routes: list[list[int]], b: int) -> list[list[int]]:
+    return [list(r[::-1]) if k == b else list(r) for k, r in enumerate(routes)]
+
+
+def reversed_variant(inst: Instance, oracle, settings: RoundSettings, routes: list[list[int]]) -> Timeline | None:
+    """The best timeline of ``routes`` with one boom's order reversed (each boom in turn), or None.
+
+    Two booms that start on neighbouring holes of the face's middle tend to block each other's next
+    moves (no wait parts them: the timeline falls back to one boom at a time); one boom drilling its
+    holes the other way round keeps them apart. Without precedence pairs only (reversing would break
+    them); cheap (a timeline per boom), so every routing solve's routes are tried both ways."""
+    if inst.precedence or inst.n_booms < 2:
+        return None
+    best = None
+    for b in range(inst.n_booms):
+        if len(routes[b]) < 2:
+            continue
+        tl = resolve(inst, _reverse_one(routes, b), oracle, settings.max_repairs)
+        if _better(tl, best):
+            best = tl
+    return best
 
 
 def park_blocked(inst: Instance, oracle) -> np.ndarray:
