@@ -38,6 +38,7 @@ class RoundSettings:
     sample_m: float = field(default=0.01, metadata=rule(gt=0))
     traj_tol_m: float = field(default=0.001, metadata=rule(gt=0))
     precedence: list[list[str]] = field(default_factory=list)
+    blocked_penalty_s: float = field(default=600.0, metadata=rule(ge=0))
 
 
 def parse_round(node: Mapping, source: str = "conf/round") -> RoundSettings:

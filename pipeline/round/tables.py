@@ -86,7 +86,8 @@ def summary(inst: Instance, tl: Timeline, lower_bound_s: float, naive: Timeline 
         "makespan_over_bound": tl.makespan / lower_bound_s if lower_bound_s > 0 else float("nan"),
         "naive_makespan_s": naive.makespan if naive is not None else None,
         "nearest_makespan_s": nearest.makespan if nearest is not None else None,
-        "min_boom_clearance_m": tl.min_clearance + d_boom,
+        # None for one boom (no pair): JSON has no infinity
+        "min_boom_clearance_m": tl.min_clearance + d_boom if np.isfinite(tl.min_clearance) else None,
         "d_boom_m": d_boom,
         "conflicts_left": tl.conflicts_left,
         "waits_inserted": len(tl.repairs),

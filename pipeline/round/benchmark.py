@@ -1,0 +1,81 @@
+"""The round benchmark (issue 20): faces x rigs, every figure of the round in one run.
+
+Faces: the demo face and generated faces (:func:`pipeline.plans.faces.generated_face`, seeded) of
+about the requested hole counts, each designed for the rig's own drift (trio: the 8 m x 7 m one).
+Rigs: any of conf/rig/. Per cell: makespan, lower bound and ratio, naive and nearest, moving and
+waiting seconds, planning seconds, smallest boom-boom clearance, waits, fallback, moves not clear.
+Every cell uses :func:`pipeline.round.schedule.schedule_round`, as the stage does.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+
+import pandas as pd
+
+from pipeline.assembly.build import build_safety, load_boom
+from pipeline.assembly.rig import build_rig
+from pipeline.core.config import as_dict, load_group_file
+from pipeline.motion.timing import load_motion
+from pipeline.plans.demo_face import demo_face
+from pipeline.plans.faces import generated_face
+from pipeline.plans.reach import reach_table, rig_solvers
+from pipeline.round.instance import RoundSettings
+from pipeline.round.schedule import schedule_round
+from pipeline.solvers.hybrid import HybridSettings
+
+
+def rig_tunnel(name: str, default) -> dict:
+    """The tunnel a rig file selects (its ``override /tunnel@_global_.tunnel: <name>`` default), else ``default``."""
+    for d in load_group_file("rig", name).get("defaults", []) or []:
+        if isinstance(d, dict):
+            for k, v in d.items():
+                if "tunnel" in k:
+                    return load_group_file("tunnel", v)
+    return as_dict(default)
+
+
+def round_benchmark(faces: Sequence, rigs: Sequence[str], tunnel_cfg, safety_cfg, hybrid: HybridSettings,
+                    settings: RoundSettings, first_start: Callable, seed: int = 0, say=print) -> pd.DataFrame:
+    """One row per (face, rig); ``faces``: "demo" or hole counts."""
+    rows = []
+    for rig_name in rigs:
+        tunnel = rig_tunnel(rig_name, tunnel_cfg)
+        rig = build_rig(rig_name, tunnel, safety_cfg)
+        safety = build_safety(load_boom("jumbo8"), tunnel, safety_cfg)
+        motions = [load_motion(m.boom) for m in rig.booms]
+        for face in faces:
+            plan = demo_face(safety=safety) if face == "demo" else generated_face(int(face), seed, safety)
+            started = time.perf_counter()
+            solvers = rig_solvers(rig, first_start, hybrid)
+            reach = reach_table(plan, rig, solvers, "hybrid")
+            reach_s = time.perf_counter() - started
+            res = schedule_round(rig, plan, reach, motions, settings, True, True)
+            s = res.summary
+            row = {"face": f"demo ({len(plan)})" if face == "demo" else f"gen {face} ({len(plan)})",
+                   "rig": rig_name, "holes": len(plan), "drilled": s["holes_drilled"],
+                   "makespan_s": s["makespan_s"], "lower_bound_s": s["lower_bound_s"],
+                   "ratio": s["makespan_over_bound"], "naive_s": s["naive_makespan_s"],
+                   "nearest_s": s["nearest_makespan_s"], "moving_s": s["moving_s"], "waiting_s": s["waiting_s"],
+                   "naive_move_wait_s": s["naive_round"]["moving_s"] + s["naive_round"]["waiting_s"],
+                   "planning_s": s["planning_s"], "reach_s": reach_s,
+                   "min_boom_clearance_m": s["min_boom_clearance_m"] if len(rig) > 1 else float("nan"),
+                   "waits": s["waits_inserted"], "sequential": s["sequential_fallback"],
+                   "conflicts_left": s["conflicts_left"], "moves_not_clear": s["moves"]["straight_not_clear"]}
+            rows.append(row)
+            say(f"{row['face']} x {rig_name}: makespan {row['makespan_s']:.0f} s, bound {row['lower_bound_s']:.0f} s, "
+                f"naive {row['naive_s']:.0f} s, nearest {row['nearest_s']:.0f} s, planned in {row['planning_s']:.1f} s")
+    return pd.DataFrame(rows)
+
+
+def markdown(table: pd.DataFrame) -> str:
+    cols = ["face", "rig", "drilled", "makespan_s", "lower_bound_s", "ratio", "naive_s", "nearest_s", "moving_s",
+            "waiting_s", "planning_s", "min_boom_clearance_m", "waits", "sequential", "moves_not_clear"]
+    out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for _, r in table.iterrows():
+        cells = [f"{r[c]:.3f}" if c in ("ratio", "min_boom_clearance_m") else
+                 f"{r[c]:.0f}" if isinstance(r[c], float) and c != "planning_s" else
+                 f"{r[c]:.1f}" if c == "planning_s" else str(r[c]) for c in cols]
+        out.append("| " + " | ".join(cells) + " |")
+    return "\n".join(out) + "\n"

@@ -1,0 +1,255 @@
+"""Stage ``schedule``: the round of a rig, every boom at once, no two booms closer than d_boom (issue 20).
+
+    python -m pipeline.schedule plan=data/plans/demo_face.csv rig=twin
+    python -m pipeline.schedule plan=round_42.xml rig=trio out=rounds/
+    python -m pipeline.schedule plan=... rig=twin round.time_limit_s=30 'round.precedence=[[R1,C1]]'
+
+Reads the plan (CSV or IREDES), solves every hole by every boom (the reach table, the hybrid with the
+other booms at park: :mod:`pipeline.plans.reach`), plans the round (:mod:`pipeline.round.schedule`:
+OR-Tools routing, the timeline with boom-boom conflicts and waits, the conflict loop; docs/round.md)
+and its baselines, and writes beside the plan (or into ``out``, a folder or a ``<stem>_round.csv``):
+
+- ``<stem>_round.csv``: hole_id, boom, order, t_start, t_end, q1 .. q8, status, reason (every plan
+  hole once, unreadable rows as ``invalid``);
+- ``<stem>_trajectory.csv``: the spec's trajectory file, every boom park to park;
+- ``<stem>_round.json``: makespan, lower bound, baselines, clearance, per boom times, moves by kind;
+- ``<stem>_round_face.png``, ``<stem>_round_gantt.png``, ``<stem>_round_replay.html``.
+
+The set is written into a private folder and published under one lock (:func:`pipeline.core.io.publish`),
+so an interrupt (Ctrl-C, SIGTERM) leaves the previous set or none, never half of one; the MLflow run
+ends KILLED (:func:`pipeline.tracking.runs.stage_run`).
+"""
+
+from __future__ import annotations
+
+import logging
+import tempfile
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import hydra
+import pandas as pd
+from omegaconf import DictConfig
+
+from pipeline.assembly.rig import build_rig
+from pipeline.core.config import as_dict, project_path
+from pipeline.core.device import configure_process
+from pipeline.core.errors import ConfigError
+from pipeline.core.io import publish, require_writable, save_figure, write_csv, write_json, write_text
+from pipeline.core.settings import RuntimeSettings, coerce, parse, rule
+from pipeline.data.holes import joint_box
+from pipeline.learning.network_source import load_network
+from pipeline.motion.timing import load_motion
+from pipeline.plans.model import COLLAR
+from pipeline.plans.reach import reach_table, rig_solvers
+from pipeline.plans.read import read_plan
+from pipeline.round.instance import parse_round
+from pipeline.round.schedule import schedule_round
+from pipeline.solvers.base import NetworkSolver
+from pipeline.solvers.hybrid import HybridSettings
+from pipeline.tracking.runs import TrackingSettings, stage_run
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ScheduleSettings:
+    """The ``schedule`` node (conf/schedule/default.yaml); the planner's settings are ``round``."""
+
+    network: str | None = "cuikm"
+    model_uri: str | None = None
+    baselines: bool = True
+    figures: bool = True
+    replay: bool = True
+    replay_frames: int = field(default=120, metadata=rule(ge=2))
+    check_moves: bool = True
+    benchmark: bool = False  # true: the round benchmark (faces x rigs) instead of one plan
+    bench_faces: list = field(default_factory=lambda: ["demo", 50, 100, 150])
+    bench_rigs: list = field(default_factory=lambda: ["single", "twin", "trio"])
+    bench_seed: int = 0
+
+
+def outputs(plan_path: Path, out) -> dict[str, Path]:
+    """Where the set goes: beside the plan, or into ``out`` (a folder, or the round CSV's path)."""
+    stem = plan_path.stem
+    if out:
+        o = project_path(out)
+        folder, stem = (o.parent, o.name.removesuffix("_round.csv").removesuffix(".csv")) if o.suffix == ".csv" \
+            else (o, stem)
+    else:
+        folder = plan_path.parent
+    names = {"round": "_round.csv", "trajectory": "_trajectory.csv", "json": "_round.json",
+             "face": "_round_face.png", "gantt": "_round_gantt.png", "replay": "_round_replay.html"}
+    return {k: folder / f"{stem}{v}" for k, v in names.items()}
+
+
+def _progress(enabled: bool):
+    """A tqdm bar over the planner's steps (routing solves, baselines, tables)."""
+    if not enabled:
+        return (lambda msg: log.info("%s", msg)), (lambda: None)
+    from tqdm import tqdm
+
+    bar = tqdm(total=None, desc="round", unit="step", leave=False)
+
+    def say(msg):
+        bar.update(1)
+        bar.set_postfix_str(msg[:70])
+        log.info("%s", msg)
+
+    return say, bar.close
+
+
+def run(cfg: DictConfig) -> dict:
+    settings = parse(ScheduleSettings, cfg.schedule, "schedule")
+    if settings.benchmark:
+        return run_benchmark(cfg, settings)
+    round_settings = parse_round(as_dict(cfg.round), "round")
+    hybrid = parse(HybridSettings, cfg.solver, "solver")
+    tracking = TrackingSettings.from_config(cfg.tracking)
+    runtime = RuntimeSettings.from_config(cfg)
+    plan_path = project_path(coerce(cfg.plan, "str", "plan"))
+    rig = build_rig(cfg.rig, cfg.tunnel, cfg.safety)
+    iredes = as_dict(cfg.solve.iredes) if plan_path.suffix.lower() == ".xml" else {}
+    plan = read_plan(plan_path, **iredes)
+    if len(plan) == 0:
+        raise ConfigError(f"plan = {plan_path}: no readable hole")
+    files = outputs(plan_path, cfg.get("out"))
+    folder = require_writable(files["round"].parent, "out (its folder)")
+    for line in plan.report():
+        log.warning("skipped: %s", line)
+    source = None
+    if settings.network or settings.model_uri:
+        source = settings.model_uri or project_path(cfg.paths.data) / "models" / f"{settings.network}.pt"
+    box = cfg.holes.sup.get("box")
+    with stage_run(tracking, f"schedule-{plan_path.stem}-{rig.name}",
+                   {"stage": "schedule", "plan": str(plan_path), "rig": rig.name}) as mlrun:
+        mlrun.log_params({"plan": str(plan_path), "rig": rig.name, "schedule": asdict(settings),
+                          "round": as_dict(cfg.round), "solver": as_dict(cfg.solver)})
+        mlrun.log_dataset(plan.holes, plan_path, "drill plan")
+
+        def first_start(boom):
+            if source is None:
+                return None
+            return NetworkSolver(boom, load_network(source, boom, tracking.uri, "schedule.model_uri")[0],
+                                 settings.network or "model")
+
+        say, close = _progress(runtime.progress)
+        try:
+            solvers = rig_solvers(rig, first_start, hybrid,
+                                  joint_box(rig.booms[0].boom, None if box is None else as_dict(box)))
+            reach = reach_table(plan, rig, solvers, "hybrid")
+            say(f"reach table: {len(plan)} holes x {len(rig)} booms")
+            motions = [load_motion(m.boom) for m in rig.booms]
+            res = schedule_round(rig, plan, reach, motions, round_settings, settings.baselines,
+                                 settings.check_moves, say)
+        finally:
+            close()
+        table = with_invalid_rows(res.round, plan)
+        summary = {"plan": str(plan_path), **res.summary, "reach_solve_s": reach.summary()["solve_s"],
+                   "invalid_rows": len({p.row for p in plan.problems})}
+        collars = plan.holes[COLLAR].to_numpy(float)
+        with tempfile.TemporaryDirectory(prefix=f".{files['round'].stem}.", dir=folder) as tmp:
+            staged = {Path(tmp) / p.name: p for p in files.values()}
+            tmp_of = {k: Path(tmp) / p.name for k, p in files.items()}
+            write_csv(table, tmp_of["round"])
+            write_csv(res.trajectory, tmp_of["trajectory"])
+            write_json(summary, tmp_of["json"])
+            if settings.figures:
+                from pipeline.round.figures import face_figure, gantt_figure
+
+                title = (f"rig {rig.name}: makespan {summary['makespan_s']:.0f} s "
+                         f"(bound {summary['lower_bound_s']:.0f} s)")
+                face = face_figure(res.round, collars, rig, title)
+                gantt = gantt_figure(res.trajectory, rig.names, title)
+                save_figure(face, tmp_of["face"])
+                save_figure(gantt, tmp_of["gantt"])
+                mlrun.log_figure(face, "round_face.png")
+                mlrun.log_figure(gantt, "round_gantt.png")
+            if settings.replay:
+                from pipeline.round.figures import replay_html
+
+                write_text(replay_html(res.trajectory, rig, collars, settings.replay_frames), tmp_of["replay"])
+            staged = {src: dst for src, dst in staged.items() if src.exists()}
+            mlrun.log_metrics(metrics(summary))
+            mlrun.log_table(table, "round.json")
+            mlrun.log_table(res.trajectory, "trajectory.json")
+            for src in staged:
+                if src.suffix in (".json", ".html"):
+                    mlrun.log_artifact(src)
+            publish(staged, folder / f".{files['round'].stem}.lock")
+    log.info("round of rig %s: %d holes, makespan %.1f s (lower bound %.1f s, naive %s, nearest %s), planned in "
+             "%.1f s -> %s", rig.name, summary["holes_drilled"], summary["makespan_s"], summary["lower_bound_s"],
+             summary["naive_makespan_s"], summary["nearest_makespan_s"], summary["planning_s"], files["round"])
+    return summary
+
+
+def run_benchmark(cfg: DictConfig, settings: ScheduleSettings) -> dict:
+    """``schedule.benchmark=true``: :func:`pipeline.round.benchmark.round_benchmark` into
+    ``paths.data/benchmark/round_benchmark.{csv,md}`` and one MLflow run."""
+    from pipeline.round.benchmark import markdown, round_benchmark
+
+    round_settings = parse_round(as_dict(cfg.round), "round")
+    hybrid = parse(HybridSettings, cfg.solver, "solver")
+    tracking = TrackingSettings.from_config(cfg.tracking)
+    folder = require_writable(project_path(cfg.paths.data) / "benchmark", "paths.data/benchmark")
+    source = None
+    if settings.network or settings.model_uri:
+        source = settings.model_uri or project_path(cfg.paths.data) / "models" / f"{settings.network}.pt"
+
+    def first_start(boom):
+        if source is None:
+            return None
+        return NetworkSolver(boom, load_network(source, boom, tracking.uri, "schedule.model_uri")[0],
+                             settings.network or "model")
+
+    with stage_run(tracking, "schedule-benchmark", {"stage": "schedule", "mode": "benchmark"}) as mlrun:
+        mlrun.log_params({"schedule": asdict(settings), "round": as_dict(cfg.round), "solver": as_dict(cfg.solver)})
+        table = round_benchmark(settings.bench_faces, settings.bench_rigs, cfg.tunnel, cfg.safety, hybrid,
+                                round_settings, first_start, settings.bench_seed, lambda m: log.info("%s", m))
+        write_csv(table, folder / "round_benchmark.csv")
+        write_text(markdown(table), folder / "round_benchmark.md")
+        mlrun.log_table(table, "round_benchmark.json")
+        for _, r in table.iterrows():
+            key = f"{r['rig']}.{r['face'].split(' (')[0].replace(' ', '')}"
+            mlrun.log_metrics({f"{key}.{k}": float(r[k]) for k in ("makespan_s", "lower_bound_s", "ratio", "naive_s",
+                                                                    "nearest_s", "planning_s")})
+    log.info("round benchmark:\n%s", markdown(table))
+    return {"rows": len(table)}
+
+
+def metrics(summary: dict) -> dict:
+    """The summary's numbers, flat (booms.L.moving_s, naive.waiting_s, ...)."""
+    out = {}
+    for k, v in summary.items():
+        if isinstance(v, bool):
+            out[k] = int(v)
+        elif isinstance(v, (int, float)) and v is not None:
+            out[k] = v
+        elif isinstance(v, dict):
+            for k2, v2 in metrics(v).items():
+                out[f"{k}.{k2}"] = v2
+    return out
+
+
+def with_invalid_rows(table: pd.DataFrame, plan) -> pd.DataFrame:
+    """The round table plus one ``invalid`` row per unreadable plan row (its problems as the reason)."""
+    if not plan.problems:
+        return table
+    by_row: dict[int, list] = {}
+    for p in plan.problems:
+        by_row.setdefault(p.row, []).append(p)
+    rows = [{"hole_id": ps[0].hole_id or f"row {r}", "boom": "", "status": "invalid",
+             "reason": "; ".join(f"{p.column}: {p.message}" for p in ps)} for r, ps in sorted(by_row.items())]
+    out = pd.concat([table, pd.DataFrame(rows)], ignore_index=True)
+    out["order"] = out["order"].astype("Int64")
+    return out
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+def main(cfg: DictConfig) -> None:
+    configure_process(RuntimeSettings.from_config(cfg).threads)
+    run(cfg)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,205 @@
+"""Stage schedule (issue 20): the round of rig twin on a small face of the demo plan, checked from the files.
+
+The checker is independent of the planner: it reads the trajectory file, interpolates it linearly every
+5 ms (the file's own rule), builds frames with the boom's own forward kinematics plus each base from the
+rig config, and recomputes boom-boom distances with BoomPair and self/tunnel clearances with each
+boom's SafetyModel. Drilling times are the spec's formula by hand.
+"""
+
+import json
+import shutil
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from pipeline import demo_face, schedule
+from pipeline.assembly.rig import build_rig
+from pipeline.core.config import PROJECT_ROOT, load_group_file
+from pipeline.geometry.boom_pair import BoomPair
+from pipeline.motion.timing import load_motion
+
+D = torch.float64
+SPEC_DRILL = lambda L: 10.0 + L / 2.5 * 60.0 + L / 1.0  # noqa: E731  spec section 7, by hand
+FAST = ["rig=twin", "schedule.network=null", "round.time_limit_s=0.5", "round.reopt_rounds=2",
+        "schedule.replay_frames=8", "runtime.progress=false"]
+COLS = ["hole_id", "collar_x", "collar_y", "collar_z", "toe_x", "toe_y", "toe_z"]
+
+
+@pytest.fixture(scope="module")
+def face_plan(tmp_path_factory, make_cfg):
+    tmp = tmp_path_factory.mktemp("schedule")
+    demo_face.run(make_cfg(tmp))
+    holes = pd.read_csv(tmp / "data" / "plans" / "demo_face.csv")
+    return tmp, holes
+
+
+@pytest.fixture(scope="module")
+def small_round(face_plan, make_cfg):
+    tmp, holes = face_plan
+    plan = tmp / "small.csv"
+    holes.iloc[::8].reset_index(drop=True).to_csv(plan, index=False)  # 9 holes of every type
+    cfg = make_cfg(tmp, *FAST, f"plan={plan}")
+    summary = schedule.run(cfg)
+    return tmp, cfg, summary, holes.iloc[::8].reset_index(drop=True)
+
+
+def test_the_three_files_and_figures_are_written(small_round):
+    tmp, _, summary, _ = small_round
+    for suffix in ("_round.csv", "_trajectory.csv", "_round.json", "_round_face.png", "_round_gantt.png",
+                   "_round_replay.html"):
+        assert (tmp / f"small{suffix}").stat().st_size > 0, suffix
+    on_disk = json.loads((tmp / "small_round.json").read_text())
+    for key in ("makespan_s", "lower_bound_s", "naive_makespan_s", "nearest_makespan_s", "min_boom_clearance_m",
+                "booms", "moves"):
+        assert key in on_disk
+    assert set(on_disk["booms"]) == {"L", "R"} and on_disk["booms"]["L"]["base"] == [0.0, 0.8, 0.0]
+    assert on_disk["makespan_s"] >= on_disk["lower_bound_s"] > 0
+    assert on_disk["makespan_s"] <= min(on_disk["naive_makespan_s"], on_disk["nearest_makespan_s"]) + 1e-9
+    assert not list(tmp.glob(".small_round.*/"))  # the private staging folder is gone
+    assert "plotly" in (tmp / "small_round_replay.html").read_text()[:200000]  # JS inlined: works offline
+
+
+def test_every_hole_once_and_drilling_lasts_the_spec_time(small_round):
+    tmp, _, _, holes = small_round
+    r = pd.read_csv(tmp / "small_round.csv", keep_default_na=False, na_values=[""])
+    assert sorted(r["hole_id"]) == sorted(holes["hole_id"])
+    ok = r[r["status"] == "ok"]
+    L = np.linalg.norm(holes[["toe_x", "toe_y", "toe_z"]].to_numpy() - holes[["collar_x", "collar_y",
+                                                                               "collar_z"]].to_numpy(), axis=1)
+    length = dict(zip(holes["hole_id"], L, strict=True))
+    for _, row in ok.iterrows():
+        assert row["t_end"] - row["t_start"] == pytest.approx(SPEC_DRILL(length[row["hole_id"]]), abs=1e-9)
+    for b, g in ok.groupby("boom"):  # a boom drills one hole at a time, in its order
+        g = g.sort_values("order")
+        assert list(g["order"]) == list(range(1, len(g) + 1))
+        assert (g["t_start"].to_numpy()[1:] >= g["t_end"].to_numpy()[:-1] - 1e-9).all(), b
+    traj = pd.read_csv(tmp / "small_trajectory.csv", keep_default_na=False)
+    drilled = traj[traj["event"] == "collar"]["hole_id"]
+    assert sorted(drilled) == sorted(ok["hole_id"])  # each drilled hole collared exactly once
+
+
+def _interp(traj, boom, names, t):
+    rows = traj[traj["boom"] == boom]
+    return np.stack([np.interp(t, rows["t"], rows[n]) for n in names], -1)
+
+
+def test_independent_checker_on_the_trajectory_file(small_round):
+    """Boom-boom >= d_boom at every 5 ms; every self/tunnel violation found is one the JSON reports."""
+    tmp, cfg, summary, _ = small_round
+    traj = pd.read_csv(tmp / "small_trajectory.csv", keep_default_na=False)
+    rig_node = load_group_file("rig", "twin")
+    bases = {b["name"]: torch.tensor(b["base"], dtype=D) for b in rig_node["booms"]}
+    rig = build_rig("twin", cfg.tunnel, cfg.safety)  # only for each boom's own Boom and SafetyModel
+    boom = rig.booms[0].boom
+    names = boom.joint_names
+    t = np.arange(0.0, float(traj["t"].max()) + 0.005, 0.005)
+    pair = BoomPair(boom, boom, 0.3)
+    with torch.inference_mode():
+        frames = {}
+        for m in rig.booms:
+            f = boom.frames(torch.as_tensor(_interp(traj, m.name, names, t)))
+            f[..., :3, 3] += bases[m.name]
+            frames[m.name] = f
+        least = min(float(pair.distances(frames["L"][s:s + 20000], frames["R"][s:s + 20000]).amin())
+                    for s in range(0, len(t), 20000))
+        bad_t = {}
+        for m in rig.booms:
+            c = m.safety.clearances_from_frames(frames[m.name])
+            worst = torch.stack([v for v in c.values()]).amin(0).numpy()
+            bad_t[m.name] = t[worst < -1e-9]
+    assert least >= 0.3, f"boom-boom distance {least:.4f} m < d_boom"
+    assert summary["min_boom_clearance_m"] >= 0.3
+    # self/tunnel: each violating instant lies inside a move the summary names as not clear
+    reported = {(m["boom"], m["from"], m["to"]) for m in summary["moves_not_clear"]}
+    assert summary["moves"]["straight_not_clear"] == len(summary["moves_not_clear"])
+    for name, ts in bad_t.items():
+        rows = traj[traj["boom"] == name].reset_index(drop=True)
+        for tv in ts:
+            k = int(np.searchsorted(rows["t"].to_numpy(), tv, side="right")) - 1
+            assert rows.loc[k, "event"] == "move", f"boom {name} breaks self/tunnel while {rows.loc[k, 'event']}"
+            before = rows.loc[:k][rows.loc[:k, "event"] == "retract"]["hole_id"]
+            after = rows.loc[k:][rows.loc[k:, "event"] == "collar"]["hole_id"]
+            key = (name, before.iloc[-1] if len(before) else "park", after.iloc[0] if len(after) else "park")
+            assert key in reported, f"unreported self/tunnel violation of boom {name} at {tv:.2f} s: {key}"
+
+
+def test_joint_speeds_respected_between_trajectory_rows(small_round, jumbo8):
+    tmp, _, _, _ = small_round
+    traj = pd.read_csv(tmp / "small_trajectory.csv", keep_default_na=False)
+    limits = load_motion(jumbo8).joints
+    names = list(jumbo8.joint_names)
+    for name in ("L", "R"):
+        rows = traj[traj["boom"] == name]
+        assert rows["event"].iloc[0] == "park" and rows["event"].iloc[-1] == "done"
+        dt = np.diff(rows["t"].to_numpy())
+        assert (dt > 0).all()
+        speed = np.abs(np.diff(rows[names].to_numpy(), axis=0)) / dt[:, None]
+        assert (speed <= np.array(limits.v) * (1 + 1e-9)).all()
+
+
+def test_unreachable_hole_keeps_its_row_and_single_hole_works(face_plan, make_cfg):
+    tmp, holes = face_plan
+    far = pd.DataFrame([["FAR", 14.0, 0.0, 2.0, 17.5, 0.0, 2.0]], columns=COLS)
+    plan = tmp / "two.csv"
+    pd.concat([holes[COLS].iloc[[3]], far], ignore_index=True).to_csv(plan, index=False)
+    s = schedule.run(make_cfg(tmp, *FAST, f"plan={plan}", "schedule.replay=false"))
+    r = pd.read_csv(tmp / "two_round.csv", keep_default_na=False, na_values=[""])
+    row = r[r["hole_id"] == "FAR"].iloc[0]
+    assert row["status"] == "unreachable" and "no boom can drill it" in row["reason"] and pd.isna(row["boom"])
+    assert s["holes_drilled"] == 1 and s["holes_unreachable"] == 1
+    # the hole that is drillable makes a single-hole round: park, move, drill, home, by one boom
+    one = r[r["status"] == "ok"].iloc[0]
+    assert s["makespan_s"] > one["t_end"] > one["t_start"] > 0
+    assert s["makespan_s"] >= s["lower_bound_s"] > 0
+
+
+@pytest.mark.slow
+def test_sigterm_leaves_no_half_written_output_and_no_running_run(face_plan):
+    tmp, holes = face_plan
+    plan = tmp / "term.csv"
+    holes.to_csv(plan, index=False)
+    cmd = [sys.executable, "-m", "pipeline.schedule", "experiment=tiny", f"paths.data={tmp}/data",
+           f"tracking.uri=sqlite:///{tmp}/term.db", f"tracking.artifact_root={tmp}/term_art", *FAST,
+           "round.time_limit_s=30", f"plan={plan}", f"hydra.run.dir={tmp}/hydra"]
+    proc = subprocess.Popen(cmd, cwd=PROJECT_ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    deadline = time.monotonic() + 180
+    while time.monotonic() < deadline:  # wait for the run, then a little into the planning
+        assert proc.poll() is None, proc.communicate()
+        try:
+            with sqlite3.connect(f"file:{tmp}/term.db?mode=ro", uri=True) as db:
+                if db.execute("select count(*) from runs where status = 'RUNNING'").fetchone()[0]:
+                    break
+        except sqlite3.OperationalError:
+            pass
+        time.sleep(0.5)
+    time.sleep(3.0)
+    proc.send_signal(signal.SIGTERM)
+    out, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 128 + signal.SIGTERM, out
+    with sqlite3.connect(f"{tmp}/term.db") as db:
+        status = [s for (s,) in db.execute("select status from runs")]
+    assert status == ["KILLED"]
+    left = [p.name for p in Path(tmp).iterdir() if p.name.startswith((".term_round.", "term_round", "term_traj"))
+            and not p.name.endswith(".lock")]
+    assert not left, left
+
+
+@pytest.mark.skipif(shutil.which("chromium") is None and shutil.which("chromium-browser") is None,
+                    reason="no chromium (apt-get install -y chromium)")
+def test_replay_renders_in_a_headless_browser(small_round):
+    tmp, _, _, _ = small_round
+    import importlib.util  # the script, loaded by path (scripts/ is not a package)
+
+    spec = importlib.util.spec_from_file_location("check_replay_script", PROJECT_ROOT / "scripts" / "check_replay.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    problems = script.check(tmp / "small_round_replay.html", tmp / "replay.png")
+    assert not problems, problems
