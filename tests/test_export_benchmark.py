@@ -6,6 +6,7 @@ import torch
 from mlflow.tracking import MlflowClient
 
 from pipeline import export_benchmark
+from pipeline.deploy import latency
 
 
 @pytest.mark.slow
@@ -13,19 +14,19 @@ def test_latency_benchmark_times_every_runtime_and_logs_to_mlflow(tmp_path, make
     cfg = make_cfg(tmp_path)  # experiment=tiny: batches [1, 20], 3 repeats, no compile, one process
     # what is timed must be the network: record each timed call's input and output, and the network
     timed_calls, networks = [], []
-    real_block_times, real_measure = export_benchmark.block_times, export_benchmark.measure
+    real_block_times, real_measure = latency.block_times, export_benchmark.measure
 
     def recording_block_times(run, pose, *args):
         with torch.inference_mode():
             timed_calls.append((pose.clone(), run(pose)))
         return real_block_times(run, pose, *args)
 
-    def recording_measure(c):
-        table, model = real_measure(c)
+    def recording_measure(*args):
+        table, model = real_measure(*args)
         networks.append(model)
         return table, model
 
-    monkeypatch.setattr(export_benchmark, "block_times", recording_block_times)
+    monkeypatch.setattr(latency, "block_times", recording_block_times)  # the harness (pipeline/deploy/latency.py)
     monkeypatch.setattr(export_benchmark, "measure", recording_measure)
     table = export_benchmark.run(cfg)
     runtimes = ["torch eager", "torch.export (.pt2)", "torch.compile", "TorchScript (.ts)",
