@@ -165,7 +165,8 @@ def _check_dataset_digests_are_dvc_hashes(repo: Path, d: str) -> None:
     assert exp.tags["mlflow.experimentKind"] == "custom_model_development"
     (uikm,) = client.search_runs([exp.experiment_id], "tags.method = 'uikm'")
     logged = {i.dataset.name: i.dataset.digest for i in uikm.inputs.dataset_inputs}
-    assert logged == {"train.parquet": dvc_md5["train.parquet"]}
+    assert logged["train.parquet"] == dvc_md5["train.parquet"]  # the training table: the version DVC records
+    assert set(logged) == {"train.parquet", "held-out holes (val_seed=999)"}  # and the held-out holes it scored
 
 
 @pytest.mark.slow
