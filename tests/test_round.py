@@ -15,12 +15,12 @@ from pipeline.core.config import load_group_file
 from pipeline.core.errors import ConfigError
 from pipeline.geometry.boom_pair import BoomPair
 from pipeline.geometry.rig import load_rig
+from pipeline.motion.checks import lever_arms
 from pipeline.motion.timing import load_motion, profile
 from pipeline.round.baselines import naive_routes, nearest_routes, side_allocation
 from pipeline.round.bounds import lower_bound
 from pipeline.round.instance import Instance, RoundSettings, drill_phases, parse_round, precedence_indices
 from pipeline.round.kinematic import kinematic_round
-from pipeline.round.oracle import lever_bounds
 from pipeline.round.plan import baseline, plan_round, reversed_variant
 from pipeline.round.routing import route
 from pipeline.round.synthetic import boom_joints
@@ -325,19 +325,22 @@ def test_trajectory_rows_respect_joint_speeds_and_the_1mm_rule(face, motion, jum
     assert worst <= 0.001 + 1e-9
 
 
-def test_lever_bounds_hold(jumbo8):
-    """Every capsule end lies within the bound of each revolute joint's axis (random configurations)."""
-    lever = lever_bounds(jumbo8)
+def test_lever_arms_hold_for_the_round_oracle(jumbo8):
+    """Every capsule end a revolute joint moves (bodies beyond its axis frame) lies within the bound
+    of that joint's axis (random configurations): the oracle's speed bound."""
+    lever = lever_arms(jumbo8)
     g = torch.Generator().manual_seed(7)
     lo, hi = jumbo8.limits(D)
     q = lo + (hi - lo) * torch.rand(4000, 8, generator=g, dtype=D)
     f = jumbo8.frames(q)
-    ends = torch.stack([p for name in jumbo8.bodies for p in jumbo8.capsule_ends(f, name)], -2)  # (N, 4, 3)
     for i, j in enumerate(jumbo8.joints):
         if not j.revolute:
             continue
+        moved = [p for name, body in jumbo8.bodies.items() for p, e in zip(
+            jumbo8.capsule_ends(f, name), (body.start, body.end), strict=True) if e.frame >= j.row + 1]
+        assert moved, j.name
         o, z = f[:, j.row + 1, :3, 3], f[:, j.row + 1, :3, 2]
-        rel = ends - o[:, None]
+        rel = torch.stack(moved, -2) - o[:, None]
         dist = (rel - (rel * z[:, None]).sum(-1, keepdim=True) * z[:, None]).norm(dim=-1)
         assert float(dist.max()) <= lever[i] + 1e-9, j.name
 
@@ -408,7 +411,7 @@ def test_one_boom_reversed_parts_two_booms_that_block_each_other():
     forward = resolve(inst, routes, oracle, 300)
     assert forward.sequential and forward.makespan == pytest.approx(sum(
         inst.drill_s) + 8 * 2.0)  # each boom park to park alone: 3 holes, 4 moves
-    alt = reversed_variant(inst, oracle, FAST, routes)
+    alt = reversed_variant(lambda rt: resolve(inst, rt, oracle, 300), routes, inst)
     assert not alt.sequential and alt.conflicts_left == 0
     assert sorted(map(sorted, alt.routes)) == sorted(map(sorted, routes))
     assert any(a == r[::-1] for a, r in zip(alt.routes, routes, strict=True))

@@ -92,7 +92,8 @@ def _interp(traj, boom, names, t):
 
 
 def test_independent_checker_on_the_trajectory_file(small_round):
-    """Boom-boom >= d_boom at every 5 ms; every self/tunnel violation found is one the JSON reports."""
+    """Boom-boom >= d_boom and self and tunnel >= 0 at every 5 ms of the file's own interpolation; a
+    move the planner could not make clear would be reported (none is, on this face)."""
     tmp, cfg, summary, _ = small_round
     traj = pd.read_csv(tmp / "small_trajectory.csv", keep_default_na=False)
     rig_node = load_group_file("rig", "twin")
@@ -110,25 +111,15 @@ def test_independent_checker_on_the_trajectory_file(small_round):
             frames[m.name] = f
         least = min(float(pair.distances(frames["L"][s:s + 20000], frames["R"][s:s + 20000]).amin())
                     for s in range(0, len(t), 20000))
-        bad_t = {}
+        own = {}
         for m in rig.booms:
             c = m.safety.clearances_from_frames(frames[m.name])
-            worst = torch.stack([v for v in c.values()]).amin(0).numpy()
-            bad_t[m.name] = t[worst < -1e-9]
+            own[m.name] = {k: float(v.min()) for k, v in c.items()}
     assert least >= 0.3, f"boom-boom distance {least:.4f} m < d_boom"
     assert summary["min_boom_clearance_m"] >= 0.3
-    # self/tunnel: each violating instant lies inside a move the summary names as not clear
-    reported = {(m["boom"], m["from"], m["to"]) for m in summary["moves_not_clear"]}
-    assert summary["moves"]["straight_not_clear"] == len(summary["moves_not_clear"])
-    for name, ts in bad_t.items():
-        rows = traj[traj["boom"] == name].reset_index(drop=True)
-        for tv in ts:
-            k = int(np.searchsorted(rows["t"].to_numpy(), tv, side="right")) - 1
-            assert rows.loc[k, "event"] == "move", f"boom {name} breaks self/tunnel while {rows.loc[k, 'event']}"
-            before = rows.loc[:k][rows.loc[:k, "event"] == "retract"]["hole_id"]
-            after = rows.loc[k:][rows.loc[k:, "event"] == "collar"]["hole_id"]
-            key = (name, before.iloc[-1] if len(before) else "park", after.iloc[0] if len(after) else "park")
-            assert key in reported, f"unreported self/tunnel violation of boom {name} at {tv:.2f} s: {key}"
+    assert summary["moves"]["failed"] == len(summary["moves_not_clear"]) == 0
+    for name, worst in own.items():
+        assert min(worst.values()) >= 0.0, f"boom {name}: {worst}"
 
 
 def test_joint_speeds_respected_between_trajectory_rows(small_round, jumbo8):

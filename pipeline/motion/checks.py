@@ -190,3 +190,80 @@ def check_path(rig: Rig, index: int, path: Path, others: Mapping | None = None, 
             t = torch.cat([t, o.instants(lever_arms(rig.booms[j].boom), resolution, t0, t0 + path.duration) - t0])
     t = distinct(t)
     return check(rig, index, t, path.positions(t), others, t0)
+
+
+@dataclass(frozen=True)
+class StraightChecks:
+    """Per straight move ``(M,)``: the smallest sampled clearance of each kind (``self``, ``tunnel``,
+    ``boom <name>`` per other boom) and the certified floor of each (module doc: a lower bound at
+    every instant of the move, not only the sampled ones)."""
+
+    least: dict[str, torch.Tensor]
+    floor: dict[str, torch.Tensor]
+
+    def clear(self, kinds: tuple[str, ...] | None = None, margin: float = 0.0) -> torch.Tensor:
+        """Moves whose sampled clearances of ``kinds`` (default all) are all >= ``margin``."""
+        keys = kinds or tuple(self.least)
+        return torch.stack([self.least[k] >= margin for k in keys]).all(0)
+
+    def certified(self, kinds: tuple[str, ...] | None = None, margin: float = 0.0) -> torch.Tensor:
+        """Moves whose floors of ``kinds`` are all >= ``margin`` (clear at every instant)."""
+        keys = kinds or tuple(self.floor)
+        return torch.stack([self.floor[k] >= margin for k in keys]).all(0)
+
+
+def check_straight_moves(rig: Rig, index: int, qa: torch.Tensor, qb: torch.Tensor, others: Mapping | None = None,
+                         resolution: float = RESOLUTION, boom_only: bool = False, chunk: int = 200_000
+                         ) -> StraightChecks:
+    """:func:`check_path` of many straight moves of boom ``index`` at once, ``qa (M, n)`` to ``qb (M, n)``
+    (``qb`` already unwrapped: the motion is ``qa + s (qb - qa)``), every other boom standing (its
+    configuration in ``others``, else its park). Each move is sampled at ``ceil(R / resolution)``
+    equal steps of s, ``R`` its travel bound, as :meth:`Path.check_instants` samples a segment (the
+    timing along the line does not change which configurations it passes). With ``boom_only`` only
+    the boom-boom clearances are computed (the screen of moves against booms at park).
+
+    One batch of at most ``chunk`` configurations at a time: the kinematics and every clearance of a
+    chunk in one call, the per-move minima by a scatter (no loop over moves)."""
+    me = rig.booms[index]
+    standing = {j: o.q[:1] for j, o in others_of(rig, index, others).items()}
+    frames_o = {j: rig.booms[j].frames(q) for j, q in standing.items()}
+    qa, qb = qa.to(torch.float64), qb.to(torch.float64)
+    step = qb - qa
+    M = qa.shape[0]
+    R = travel(step, lever_arms(me.boom))
+    n = torch.ceil(R / resolution).clamp_min(1).long()
+    kinds = ([] if boom_only else ["self", "tunnel"]) + [f"boom {rig.names[j]}" for j in standing]
+    drift = {"self": 2.0, "tunnel": 1.0, **{f"boom {rig.names[j]}": 1.0 for j in standing}}  # x R / n
+    inf = lambda: torch.full((M,), math.inf, dtype=torch.float64)  # noqa: E731
+    least, floor = {k: inf() for k in kinds}, {k: inf() for k in kinds}
+    counts = n + 1
+    ends = torch.cumsum(counts, 0)
+    lo = 0
+    while lo < M:  # moves grouped into chunks of about `chunk` configurations
+        hi = int(torch.searchsorted(ends, ends[lo - 1] + chunk if lo else torch.tensor(chunk), right=True))
+        hi = max(hi, lo + 1)
+        which = torch.repeat_interleave(torch.arange(lo, hi), counts[lo:hi])
+        first = (ends[lo:hi] - counts[lo:hi]) - (ends[lo - 1] if lo else 0)
+        k = torch.arange(which.shape[0]) - first[which - lo]
+        s = k.to(torch.float64) / n[which].to(torch.float64)
+        q = qa[which] + s[:, None] * step[which]
+        with torch.inference_mode():
+            f = me.frames(q)
+            values = {}
+            if not boom_only:
+                c = me.safety.clearances_from_frames(f)
+                values["self"] = c["self"]
+                values["tunnel"] = torch.stack([c[k] for k in SURFACES]).amin(0)
+            for j, fj in frames_o.items():
+                a, b = (f, fj) if index < j else (fj, f)
+                values[f"boom {rig.names[j]}"] = rig.pair(min(index, j), max(index, j)).clearance(a, b)
+        same = which[1:] == which[:-1]  # consecutive samples of one move: an interval
+        for key, x in values.items():
+            least[key][lo:hi] = torch.full((hi - lo,), math.inf, dtype=torch.float64).scatter_reduce(
+                0, which - lo, x, "amin")
+            mid = 0.5 * (x[1:] + x[:-1] - drift[key] * (R / n)[which[1:]])
+            mid = torch.where(same, torch.minimum(mid, torch.minimum(x[1:], x[:-1])), torch.full_like(mid, math.inf))
+            part = torch.full((hi - lo,), math.inf, dtype=torch.float64).scatter_reduce(0, which[1:] - lo, mid, "amin")
+            floor[key][lo:hi] = torch.minimum(part, least[key][lo:hi])
+        lo = hi
+    return StraightChecks(least, floor)

@@ -10,7 +10,9 @@ boom standing or moving, no point moving more than 1 cm between checks):
    lower limit, travel in a straight line of the other joints, feed forward; three rest-to-rest
    segments.
 3. ``planned``: a sampling planner, OMPL's RRTConnect (Python bindings, ``pip install ompl``), in
-   joint space within the joint ranges, then OMPL's path simplifier (vertex reduction and
+   joint space within the joint ranges (with ``box_margin``, first within the box spanned by A and B
+   widened by that share of each range: a detour near the straight line, which keeps out of the
+   space of booms working beside it; then the whole ranges), then OMPL's path simplifier (vertex reduction and
    shortcutting), then the spec's profile on each edge, stopping at each waypoint, and the dense check
    again. OMPL because it is the maintained reference library of sampling planners (BSD, Kavraki
    Lab at Rice; MoveIt's default planners), ships Python wheels (2.0: cp311, no build), and has a
@@ -69,6 +71,7 @@ class PlannerSettings:
     simplify_s: float = 1.0  # the simplifier's time budget
     seed: int | None = 0  # OMPL's global seed, set before each plan (None: leave it)
     sweep_step: float = 0.10  # m of point travel between samples of a moving boom's sweep
+    box_margin: float | None = None  # first search near the straight line (module doc); None: whole ranges only
 
 
 @dataclass(frozen=True)
@@ -172,7 +175,14 @@ def plan_move(rig: Rig, boom: int | str, qa: torch.Tensor, qb: torch.Tensor, lim
         notes.append(_why("retract", c))
 
     if "planned" in kinds:
-        waypoints, why = _sample(rig, index, qa, qb, limits, timed, t0, lever, planner, resolution)
+        waypoints, why = None, ""
+        if planner.box_margin is not None:  # near the straight line first: a compact detour
+            waypoints, why = _sample(rig, index, qa, qb, limits, timed, t0, lever, planner, resolution,
+                                     planner.box_margin)
+            if waypoints is None:
+                notes.append(f"planned (box margin {planner.box_margin:g}): {why}")
+        if waypoints is None:
+            waypoints, why = _sample(rig, index, qa, qb, limits, timed, t0, lever, planner, resolution)
         if waypoints is None:
             notes.append(f"planned: {why}")
         else:
@@ -207,8 +217,11 @@ class _Validity:
         return ok
 
 
-def _sample(rig, index, qa, qb, limits, timed, t0, lever, settings: PlannerSettings, resolution):
-    """RRTConnect from ``qa`` to ``qb`` (unwrapped), simplified: waypoints ``(W, n)`` or ``(None, why)``."""
+def _sample(rig, index, qa, qb, limits, timed, t0, lever, settings: PlannerSettings, resolution,
+            box_margin: float | None = None):
+    """RRTConnect from ``qa`` to ``qb`` (unwrapped), simplified: waypoints ``(W, n)`` or ``(None, why)``.
+    ``box_margin``: search only the box spanned by qa and qb widened by that share of each joint's
+    range (a detour that stays near the straight line, out of the way of other booms)."""
     from ompl import base as ob
     from ompl import geometric as og
     from ompl import util as ou
@@ -222,6 +235,9 @@ def _sample(rig, index, qa, qb, limits, timed, t0, lever, settings: PlannerSetti
     turn = torch.tensor(limits.wrap)
     lo = torch.where(turn, torch.minimum(qa, qb) - math.pi, lo)
     hi = torch.where(turn, torch.maximum(qa, qb) + math.pi, hi)
+    if box_margin is not None:
+        widen = box_margin * (hi - lo)
+        lo, hi = torch.maximum(lo, torch.minimum(qa, qb) - widen), torch.minimum(hi, torch.maximum(qa, qb) + widen)
     n = boom.n_joints
     space = ob.RealVectorStateSpace(n)
     bounds = ob.RealVectorBounds(n)

@@ -34,7 +34,7 @@ def side_allocation(inst: Instance) -> np.ndarray:
     return np.where(inst.drillable, boom, -1)
 
 
-def _stable_order(seq: list[int], precedence) -> list[int]:
+def stable_order(seq: list[int], precedence) -> list[int]:
     """``seq`` reordered as little as possible so that every pair (i, j) within it has i before j."""
     inside = set(seq)
     preds = {h: {i for i, j in precedence if j == h and i in inside} for h in seq}
@@ -52,7 +52,7 @@ def _stable_order(seq: list[int], precedence) -> list[int]:
 
 def naive_routes(inst: Instance) -> list[list[int]]:
     alloc = side_allocation(inst)
-    return [_stable_order([int(h) for h in np.flatnonzero(alloc == b)], inst.precedence) for b in range(inst.n_booms)]
+    return [stable_order([int(h) for h in np.flatnonzero(alloc == b)], inst.precedence) for b in range(inst.n_booms)]
 
 
 def nearest_routes(inst: Instance) -> list[list[int]]:
@@ -68,5 +68,5 @@ def nearest_routes(inst: Instance) -> list[list[int]]:
             h = todo.pop(int(np.argmin(d)))
             seq.append(h)
             at = inst.collars[h]
-        routes.append(_stable_order(seq, inst.precedence))
+        routes.append(stable_order(seq, inst.precedence))
     return routes

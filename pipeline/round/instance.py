@@ -30,7 +30,7 @@ FIRST_SOLUTIONS = ("PATH_CHEAPEST_ARC", "PARALLEL_CHEAPEST_INSERTION", "LOCAL_CH
 class RoundSettings:
     """``conf/round/<name>.yaml``."""
 
-    time_limit_s: float = field(default=10.0, metadata=rule(gt=0))
+    time_limit_s: float = field(default=5.0, metadata=rule(gt=0))
     first_solution: str = field(default="PARALLEL_CHEAPEST_INSERTION", metadata=rule(choices=FIRST_SOLUTIONS))
     span_cost: int = field(default=100, metadata=rule(ge=0))
     reopt_rounds: int = field(default=4, metadata=rule(ge=0))
@@ -39,6 +39,14 @@ class RoundSettings:
     traj_tol_m: float = field(default=0.001, metadata=rule(gt=0))
     precedence: list[list[str]] = field(default_factory=list)
     blocked_penalty_s: float = field(default=600.0, metadata=rule(ge=0))
+    blocked_neighbours: int = field(default=12, metadata=rule(ge=1))
+    blocked_screen_m: float = field(default=0.05, metadata=rule(gt=0))
+    detours: bool = True
+    detour_plan_s: float = field(default=1.0, metadata=rule(gt=0))
+    detour_box: float | None = field(default=0.1, metadata=rule(gt=0))
+    budget_s: float = field(default=45.0, metadata=rule(gt=0))
+    stop_ratio: float = field(default=1.02, metadata=rule(ge=1))
+    sweep_band_m: float = field(default=1.0, metadata=rule(gt=0))
 
 
 def parse_round(node: Mapping, source: str = "conf/round") -> RoundSettings:

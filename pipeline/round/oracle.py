@@ -1,8 +1,11 @@
 """Boom-boom conflicts of timed segments, from the real kinematics (rig model, boom_pair, timing).
 
 A segment of boom b is ``(t0, t1, u, v)``: standing at node u (``u == v``: a hole's joints, or its
-park, index H) or moving from u to v by the synchronised straight-line move of
-:func:`pipeline.motion.timing.profile` (duration ``move_s[b, u, v]``, starting at t0). The timeline
+park, index H) or moving from u to v, starting at t0: by the synchronised straight-line move of
+:func:`pipeline.motion.timing.profile`, or by the boom's *detour* for u -> v when one was set
+(:meth:`KinematicOracle.set_detour`: a :class:`pipeline.motion.path.Path` of rest-to-rest segments,
+the retract or planned move of :func:`pipeline.motion.moves.plan_move`; :mod:`pipeline.round.detours`
+sets them). The move's duration is ``move_s[b, u, v]`` of the instance, which holds the detour's. The timeline
 asks :meth:`KinematicOracle.check` for batches of pairs of segments of two booms over the interval
 where both run; the oracle answers, per pair, the first instant where d_boom breaks (inf if none) and
 the smallest clearance it sampled.
@@ -13,8 +16,9 @@ pairs of a timeline are of this kind.
 
 Pairs with a move are checked by conservative advancement at instants common to both booms. A point
 of boom b moves at most at ``|ds/dt| * K_b <= peak * K_b`` with ``K_b = sum_i |step_i| * lever_i``
-(``lever_i``: :func:`lever_bounds`, a bound on the distance of any capsule end from joint i's axis;
-1 for a prismatic joint). So if the clearance is c at instant t, it stays at least ``floor`` until
+(``lever_i``: :func:`pipeline.motion.checks.lever_arms`, a bound on the distance of any capsule
+point from joint i's axis; 1 for a prismatic joint; a detour's K is the largest over its segments).
+So if the clearance is c at instant t, it stays at least ``floor`` until
 ``t + (c - floor) / (v_a + v_b)``: the next instant checked. ``floor = 2 traj_tol_m`` keeps the
 trajectory file clear too (its linear interpolation keeps each boom within traj_tol_m of the plan).
 A pair conflicts at the first checked instant whose clearance is below ``margin = sample_m / 2 +
@@ -28,49 +32,18 @@ checked (steps shrink near the minimum).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 
 import numpy as np
 import torch
 
-from pipeline.geometry.kinematics import Boom
-from pipeline.motion.timing import JointLimits, profile
+from pipeline.motion.checks import lever_arms
+from pipeline.motion.path import Path
+from pipeline.motion.timing import JointLimits, Profile, profile
 
 D = torch.float64
-
-
-def lever_bounds(boom: Boom) -> np.ndarray:
-    """Per joint, a bound (m) on the distance from its axis to any capsule end, over all configurations
-    within the joint limits; 1 for prismatic joints (points move as fast as the joint).
-
-    Modified D-H: frame k's origin is frame k-1's plus ``a_k x_{k-1} + d_k z_k``, so the distance of
-    frame f's origin from frame r's is at most ``sum_{k=r+1..f} (|a_k| + max |d_k|)`` (triangle
-    inequality; max |d_k| over the joint's range where a joint drives d_k); a capsule end adds its
-    tool offset and ``|along_z|``. Joint i on row r turns about z of frame r+1 through its origin."""
-    rows = boom.rows
-    n_rows = len(rows)
-    extent = []
-    for k, (_, a, _, d) in enumerate(rows):
-        ext_a, ext_d = abs(a), abs(d)
-        for j in boom.joints:
-            if j.row == k and j.param == "d":
-                ext_d = max(abs(d + j.lower), abs(d + j.upper))
-            if j.row == k and j.param == "a":
-                ext_a = max(abs(a + j.lower), abs(a + j.upper))
-        extent.append(ext_a + ext_d)
-    tool = math.hypot(*boom.tool)
-    ends = [p for body in boom.bodies.values() for p in (body.start, body.end)]
-
-    def reach_from(frame_r: int) -> float:
-        best = 0.0
-        for p in ends:
-            f = min(p.frame, n_rows)  # the tool frame sits on frame n_rows plus the tool offset
-            dist = sum(extent[k] for k in range(frame_r, f)) + (tool if p.frame > n_rows else 0.0) + abs(p.along_z)
-            best = max(best, dist)
-        return best
-
-    return np.array([reach_from(j.row + 1) if j.revolute else 1.0 for j in boom.joints])
 
 
 class KinematicOracle:
@@ -84,13 +57,49 @@ class KinematicOracle:
                  traj_tol_m: float = 0.001):
         self.rig, self.limits = rig, list(limits)
         self.joints = [torch.as_tensor(q, dtype=D) for q in joints]
-        self.levers = [torch.tensor(lever_bounds(m.boom), dtype=D) for m in rig.booms]
+        self.levers = [lever_arms(m.boom) for m in rig.booms]
         self.sample_m, self.traj_tol_m = float(sample_m), float(traj_tol_m)
         self.block = 16  # instants per pair and round of the advancement (fewer rounds, bigger batches)
         self.floor = 2 * self.traj_tol_m  # kept between samples: the trajectory file stays clear
         self.margin = self.sample_m / 2 + self.floor
         self._standing: dict[tuple[int, int], np.ndarray] = {}
         self.evaluations = 0  # boom-boom clearance evaluations (pairs of configurations), for reports
+        self.detours: list[dict[tuple[int, int], Path]] = [{} for _ in self.joints]
+        self._detour_id = [np.full((q.shape[0], q.shape[0]), -1, np.int64) for q in self.joints]
+        self._stacked: list[dict | None] = [None for _ in self.joints]
+
+    def set_detour(self, b: int, u: int, v: int, path: Path) -> None:
+        """Boom b moves u -> v along ``path`` (it starts at node u's joints up to full turns and ends at
+        node v's); the instance's ``move_s[b, u, v]`` must be ``path.duration``."""
+        self.detours[b][(u, v)] = path
+        if self._detour_id[b][u, v] < 0:
+            self._detour_id[b][u, v] = len(self.detours[b]) - 1
+        order = sorted(self.detours[b], key=lambda key: self._detour_id[b][key])
+        paths = [self.detours[b][key] for key in order]
+        span = max(p.duration for p in paths) + 1.0  # detour d's segments live at d * span + their start
+        segs = [p.segments for p in paths]
+        cat = {f.name: torch.cat([getattr(g, f.name) for g in segs]) for f in dataclasses.fields(Profile)}
+        owner = torch.cat([torch.full((g.duration.shape[0],), d, dtype=torch.long) for d, g in enumerate(segs)])
+        starts = torch.cat([p.starts + d * span for d, p in enumerate(paths)])
+        K = (cat["step"].abs() * self.levers[b]).sum(-1)
+        speed = torch.zeros(len(paths), dtype=D).scatter_reduce(0, owner, cat["peak"] * K * (cat["duration"] > 0),
+                                                                 "amax")
+        self._stacked[b] = {"seg": Profile(**cat), "starts": starts, "span": span, "speed": speed,
+                            "duration": torch.tensor([p.duration for p in paths], dtype=D)}
+
+    def detour(self, b: int, u: int, v: int) -> Path | None:
+        return self.detours[b].get((u, v))
+
+    def rows(self, b: int, u: int, v: int, q_from: torch.Tensor):
+        """Trajectory rows ``(t, q)`` of boom b's move u -> v from ``q_from`` (node u's joints, unwrapped
+        as the file runs): linear interpolation within ``traj_tol_m`` of the motion at every point."""
+        path = self.detour(b, u, v)
+        if path is None:
+            return move_rows(q_from, self.joints[b][v], self.limits[b], self.levers[b].numpy(), self.traj_tol_m)
+        t, q = path.rows(self.levers[b], self.traj_tol_m)
+        turns = torch.round((q_from - q[0]) / (2 * math.pi)) * 2 * math.pi  # full turns only (q4, q7)
+        turns = torch.where(torch.tensor(self.limits[b].wrap), turns, torch.zeros_like(turns))
+        return t.numpy(), (q + turns).numpy()
 
     def standing(self, a: int, b: int) -> np.ndarray:
         """``(H + 1, H + 1)`` clearance (m, less d_boom) of boom a at node i and boom b at node j."""
@@ -105,11 +114,17 @@ class KinematicOracle:
         return self._standing[(a, b)]
 
     def speed_bound(self, b: int, u: np.ndarray, v: np.ndarray):
-        """Per move u -> v of boom b: its profile and a bound (m/s) on the speed of any point of it."""
+        """Per move u -> v of boom b: its motion (a batch for :func:`_positions`) and a bound (m/s) on the
+        speed of any point of it (a detour's: the largest over its segments)."""
         q = self.joints[b]
         prof = profile(q[torch.as_tensor(u)], q[torch.as_tensor(v)], self.limits[b])
         K = (prof.step.abs() * self.levers[b]).sum(-1)
-        return prof, prof.peak * K * (prof.duration > 0)
+        speed = prof.peak * K * (prof.duration > 0)
+        d = torch.as_tensor(self._detour_id[b][u, v])
+        stacked = self._stacked[b]
+        if stacked is not None and bool((d >= 0).any()):
+            speed = torch.where(d >= 0, stacked["speed"][d.clamp_min(0)], speed)
+        return {"straight": prof, "detour": d, "stacked": stacked}, speed
 
     def check(self, a: int, seg_a: dict, b: int, seg_b: dict, lo: np.ndarray, hi: np.ndarray):
         """Pairs k of segments (``t0, u, v`` arrays per boom) over ``[lo_k, hi_k]``: the first instant
@@ -166,7 +181,24 @@ class KinematicOracle:
         return first, least
 
 
-def _positions(prof, pair: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+def _positions(motion: dict, pair: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    """Joints at time ``t`` (from each move's start) of the moves ``pair`` of a batch of
+    :meth:`KinematicOracle.speed_bound`: the straight profile, or the detour's segment at that time."""
+    q = _profile_at(motion["straight"], pair, t)
+    d, stacked = motion["detour"][pair], motion["stacked"]
+    if stacked is None or not bool((d >= 0).any()):
+        return q
+    on = torch.nonzero(d >= 0).squeeze(-1)
+    dd = d[on]
+    local = torch.minimum(t[on].clamp_min(0), stacked["duration"][dd])
+    g = dd.to(D) * stacked["span"] + local  # each detour's segments at d * span + their start: one search
+    i = (torch.searchsorted(stacked["starts"], g, right=True) - 1).clamp_min(0)
+    q = q.clone()
+    q[on] = _profile_at(stacked["seg"], i, g - stacked["starts"][i])
+    return q
+
+
+def _profile_at(prof, pair: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
     """Joints at time ``t`` (from each move's start) of the moves ``pair`` of a batched profile."""
     T, tau, A, V = prof.duration[pair], prof.tau[pair], prof.accel[pair], prof.peak[pair]
     t = torch.minimum(t.clamp_min(0), T)

@@ -23,11 +23,17 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+import torch
 
+from pipeline.motion.checks import check_straight_moves
+from pipeline.motion.moves import PlannerSettings
+from pipeline.motion.path import unwrapped
 from pipeline.round.baselines import naive_routes, nearest_routes
 from pipeline.round.bounds import lower_bound
+from pipeline.round.detours import PLANNED, RETRACT, MoveBook
 from pipeline.round.instance import Instance, RoundSettings
 from pipeline.round.routing import route
+from pipeline.round.seeds import sweep_routes
 from pipeline.round.timeline import Timeline, resolve
 
 
@@ -43,44 +49,105 @@ class RoundPlan:
     seed: str | None = None  # the baseline the routing started from (also a candidate round)
     kept_seed: bool = False  # no routing solve beat the seed: the round is the seed baseline's
     baselines: dict = field(default_factory=dict)  # kind -> its timeline (the same conflict handling)
+    inst: Instance | None = None  # the instance the timelines were timed on (detours' durations in move_s)
+    book: MoveBook | None = None  # what is known of every move (straight, detour, failed)
+    stopped: str = ""  # why the re-optimisation stopped
+    baselines_s: float = 0.0  # seconds spent timing the spec's baselines after the planning
+
+
+SEEDS = ("sweep -y", "sweep +y")  # the planner's starts (pipeline.round.seeds)
+BASELINES = ("naive", "nearest")  # the spec's, timed after the planning with the same moves and conflicts
 
 
 def _better(a: Timeline, b: Timeline | None) -> bool:
     return b is None or (a.conflicts_left, a.makespan) < (b.conflicts_left, b.makespan)
 
 
+class _Timer:
+    """Routes -> timeline, every move looked at first (:meth:`MoveBook.ensure`): the one way the
+    planner times a candidate, so that every candidate's moves are checked and priced alike."""
+
+    def __init__(self, inst: Instance, oracle, settings: RoundSettings, book: MoveBook | None):
+        self.inst, self.oracle, self.settings, self.book = inst, oracle, settings, book
+
+    def __call__(self, routes: list[list[int]]) -> Timeline:
+        if self.book is not None:
+            self.inst = self.book.ensure(self.inst, routes)
+        return resolve(self.inst, routes, self.oracle, self.settings.max_repairs)
+
+
+def make_book(inst: Instance, oracle, settings: RoundSettings) -> MoveBook | None:
+    """The move book of a kinematic oracle (None for an oracle without a rig, or ``detours: false``)."""
+    if not settings.detours or getattr(oracle, "rig", None) is None:
+        return None
+    return MoveBook(oracle, inst.n_holes, settings.sample_m,
+                    PlannerSettings(time_s=settings.detour_plan_s, simplify_s=settings.detour_plan_s / 10,
+                                    box_margin=settings.detour_box))
+
+
 def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callable[[str], None] | None = None,
-               time_limit_s: float | None = None) -> RoundPlan:
+               time_limit_s: float | None = None, book: MoveBook | None = None, baselines: bool = True) -> RoundPlan:
+    """The round of ``inst`` (module docstring); ``book``: the move book to use (default
+    :func:`make_book`); ``baselines``: time the spec's naive and nearest afterwards (``baselines``
+    of the plan, not counted in ``planning_s``); re-optimisation stops early when the best round is within
+    ``settings.stop_ratio`` of the lower bound or the planning time passes ``settings.budget_s``."""
     t0 = time.perf_counter()
     say = progress or (lambda _msg: None)
+    book = book if book is not None else make_book(inst, oracle, settings)
+    timer = _Timer(inst, oracle, settings, book)
+    lb = lower_bound(inst)
     best, seed, done = None, None, {}
-    if seeded(inst):  # the spec's baselines, timed: the routing starts from the better one, and it is a candidate
-        for kind in ("naive", "nearest"):
-            tl = done[kind] = baseline(inst, oracle, kind, settings)
+    if seeded(inst):  # the sweeps, timed: the best is a candidate and the routing's start
+        for kind in SEEDS:
+            tl = timer(seed_routes(inst, kind, settings.sweep_band_m))
             say(f"seed {kind}: makespan {tl.makespan:.1f} s, {tl.conflicts_left} conflicts left")
             if _better(tl, best):
                 best, seed = tl, kind
-            alt = reversed_variant(inst, oracle, settings, tl.routes)
-            if alt is not None and _better(alt, best):
-                say(f"seed {kind}, one boom reversed: makespan {alt.makespan:.1f} s, {alt.conflicts_left} conflicts")
-                best, seed = alt, f"{kind} (one boom reversed)"
-    blocked = park_blocked(inst, oracle) if settings.blocked_penalty_s > 0 and inst.n_booms > 1 else None
-    costed = inst if blocked is None else replace(inst, move_s=inst.move_s + settings.blocked_penalty_s * blocked)
-    if blocked is not None:
-        say(f"moves blocked by another boom at park: {int(blocked.sum())} of {blocked.size} (penalised in the routing)")
-    r = route(costed, settings, time_limit_s=time_limit_s, initial=None if best is None else best.routes)
+    blocked = None
+    if settings.blocked_penalty_s > 0 and inst.n_booms > 1:
+        blocked = park_blocked(inst, oracle, settings.blocked_neighbours, settings.blocked_screen_m)
+        say(f"moves blocked by another boom at park: {int(blocked.sum())} of the {settings.blocked_neighbours} "
+            "shortest per node (penalised in the routing)")
+
+    def costed() -> Instance:
+        cur = timer.inst
+        if blocked is None:
+            return cur
+        penalty = blocked.copy()
+        if book is not None:  # a detour was planned clear of the other booms at park
+            penalty &= (book.status != RETRACT) & (book.status != PLANNED)
+        return replace(cur, move_s=cur.move_s + settings.blocked_penalty_s * penalty)
+
+    def remaining() -> float:
+        return settings.budget_s - (time.perf_counter() - t0)
+
+    def limit() -> float:
+        base = time_limit_s if time_limit_s is not None else settings.time_limit_s
+        return max(0.1, min(base, remaining()))
+
     penalised: dict[tuple[int, int], float] = {}
     apart: set[tuple[int, int, int, int]] = set()
-    rounds = 1
+    stopped = ""
+    rounds = 0
+    r = None
+    if best is not None and best.conflicts_left == 0 and best.makespan <= settings.stop_ratio * lb:
+        stopped = f"a seed is within stop_ratio {settings.stop_ratio} of the lower bound"
+    else:
+        r = route(costed(), settings, time_limit_s=limit(), initial=None if best is None else best.routes)
+        rounds = 1
     for it in range(settings.reopt_rounds + 1):
-        tl = resolve(inst, r.routes, oracle, settings.max_repairs)
+        if r is None:
+            break
+        t_timing = time.perf_counter()
+        tl = timer(r.routes)
         say(f"round {it}: makespan {tl.makespan:.1f} s, {len(tl.repairs)} waits, {tl.conflicts_left} conflicts left")
         if _better(tl, best):
             best = tl
-        alt = reversed_variant(inst, oracle, settings, r.routes)
+        alt = reversed_variant(timer, r.routes, inst)
         if alt is not None and _better(alt, best):
             say(f"round {it}, one boom reversed: makespan {alt.makespan:.1f} s, {alt.conflicts_left} conflicts left")
             best = alt
+        last_timing = time.perf_counter() - t_timing
         new, new_apart = {}, set()
         for rec in tl.repairs:
             (i, j), (a, b) = rec["nodes"], rec["booms"]
@@ -91,61 +158,98 @@ def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callab
             key = (min(i, j), max(i, j))
             if key not in penalised and (inst.reach[:, i] & inst.reach[:, j]).any():
                 new[key] = max(new.get(key, 0.0), rec["wait_s"])
-        if not (new or new_apart) or it == settings.reopt_rounds:
+        if best.conflicts_left == 0 and best.makespan <= settings.stop_ratio * lb:
+            stopped = f"within stop_ratio {settings.stop_ratio} of the lower bound"
+            break
+        if not (new or new_apart):
+            stopped = "no new conflict pair to feed back"
+            break
+        if it == settings.reopt_rounds:
+            stopped = f"reopt_rounds ({settings.reopt_rounds}) done"
+            break
+        if remaining() < limit() + last_timing:  # the next solve and its timing would pass the budget
+            stopped = f"budget_s ({settings.budget_s:g} s): no time left for another routing solve"
             break
         penalised.update(new)
         apart |= new_apart
-        r = route(costed, settings, same_boom=penalised, apart=sorted(apart), initial=best.routes,
-                  time_limit_s=time_limit_s)
+        r = route(costed(), settings, same_boom=penalised, apart=sorted(apart), initial=best.routes,
+                  time_limit_s=limit())
         rounds += 1
-    return RoundPlan(best, r.left_out, lower_bound(inst), rounds, penalised, sorted(apart), time.perf_counter() - t0,
-                     seed, best is not None and seed is not None and best.routes in (
-                         seed_routes(inst, seed.split(" ")[0]),
-                         *(_reverse_one(seed_routes(inst, seed.split(" ")[0]), b) for b in range(inst.n_booms))), done)
+    if best is None:  # no seed and no routing (cannot happen: a routing runs unless a seed was good enough)
+        raise RuntimeError("round: no candidate timeline")
+    planning_s = time.perf_counter() - t0
+    if baselines and seeded(inst):  # the spec's rounds: reported, and candidates (never worse than them)
+        for kind in BASELINES:
+            tl = done[kind] = timer(seed_routes(inst, kind))
+            say(f"baseline {kind}: makespan {tl.makespan:.1f} s, {tl.conflicts_left} conflicts left")
+            if _better(tl, best):
+                best, seed = tl, kind
+    kept = seed is not None and best.routes == seed_routes(inst, seed, settings.sweep_band_m)
+    left_out = [int(h) for h in np.flatnonzero(~inst.drillable)]
+    say(f"stopped: {stopped}")
+    return RoundPlan(best, left_out, lb, rounds, penalised, sorted(apart), planning_s,
+                     seed, kept, done, timer.inst, book, stopped, time.perf_counter() - t0 - planning_s)
 
 
 def _reverse_one(routes: list[list[int]], b: int) -> list[list[int]]:
     return [list(r[::-1]) if k == b else list(r) for k, r in enumerate(routes)]
 
 
-def reversed_variant(inst: Instance, oracle, settings: RoundSettings, routes: list[list[int]]) -> Timeline | None:
+def reversed_variant(timer: Callable[[list[list[int]]], Timeline], routes: list[list[int]],
+                     inst: Instance) -> Timeline | None:
     """The best timeline of ``routes`` with one boom's order reversed (each boom in turn), or None.
 
     Two booms that start on neighbouring holes of the face's middle tend to block each other's next
     moves (no wait parts them: the timeline falls back to one boom at a time); one boom drilling its
     holes the other way round keeps them apart. Without precedence pairs only (reversing would break
-    them); cheap (a timeline per boom), so every routing solve's routes are tried both ways."""
+    them); cheap (a timeline per boom), so every routing solve's routes are tried both ways.
+    ``timer``: routes -> timeline (the planner's, which looks at every move first)."""
     if inst.precedence or inst.n_booms < 2:
         return None
     best = None
     for b in range(inst.n_booms):
         if len(routes[b]) < 2:
             continue
-        tl = resolve(inst, _reverse_one(routes, b), oracle, settings.max_repairs)
+        tl = timer(_reverse_one(routes, b))
         if _better(tl, best):
             best = tl
     return best
 
 
-def park_blocked(inst: Instance, oracle) -> np.ndarray:
-    """``(B, H + 1, H + 1)`` bool: boom a's straight move u -> v conflicts with some other boom standing at
-    its park (the oracle's rule). Such a move can never run while that boom is home (at the start or
-    the end of the round), and waits cannot part them; the routing pays ``blocked_penalty_s`` for each."""
+def park_blocked(inst: Instance, oracle, neighbours: int = 12, screen_m: float = 0.05) -> np.ndarray:
+    """``(B, H + 1, H + 1)`` bool: boom a's straight move u -> v passes within the oracle's margin of
+    some other boom standing at its park. Such a move can never run while that boom is home (at the
+    start or the end of the round), and waits cannot part them; the routing pays
+    ``blocked_penalty_s`` for each. A routing cost, not a check (the timeline's oracle checks every
+    move): only each node's ``neighbours`` shortest moves out and in are screened (the routing
+    uses short moves; others stay unpenalised), sampled every ``screen_m`` of point travel, all in
+    one batch per boom (:func:`pipeline.motion.checks.check_straight_moves`)."""
     B, H = inst.n_booms, inst.n_holes
     bad = np.zeros((B, H + 1, H + 1), bool)
-    park = {"t0": 0.0, "t1": np.inf, "u": H, "v": H, "k": -1}
+    rig = getattr(oracle, "rig", None)
+    if rig is None:
+        return bad
     for a in range(B):
         ok = np.concatenate([inst.reach[a], [True]])
-        u, v = np.nonzero(ok[:, None] & ok[None, :] & ~np.eye(H + 1, dtype=bool))
-        dur = inst.move_s[a, u, v]
-        mv = {"t0": np.zeros(len(u)), "t1": dur, "u": u, "v": v, "k": np.zeros(len(u), int)}
-        for b in range(B):
-            if b == a or not len(u):
-                continue
-            other = {k: np.full(len(u), x) for k, x in park.items()}
-            lo = np.zeros(len(u))
-            first, _ = oracle.check(a, mv, b, other, lo, dur) if a < b else oracle.check(b, other, a, mv, lo, dur)
-            bad[a, u, v] |= np.isfinite(first)
+        nodes = np.flatnonzero(ok)
+        if len(nodes) < 2:
+            continue
+        mv = inst.move_s[a][np.ix_(nodes, nodes)].astype(float)
+        np.fill_diagonal(mv, np.inf)
+        k = min(neighbours, len(nodes) - 1)
+        near = np.zeros(mv.shape, bool)
+        rows = np.arange(len(nodes))[:, None]
+        near[rows, np.argsort(mv, axis=1)[:, :k]] = True  # each node's k shortest moves out ...
+        near |= near.T  # ... and their reverses (the same configurations backwards)
+        near[:, nodes == H] = near[nodes == H, :] = True  # every move from and to park
+        np.fill_diagonal(near, False)
+        iu, iv = np.nonzero(near)
+        u, v = nodes[iu], nodes[iv]
+        q = oracle.joints[a]
+        qa = q[torch.as_tensor(u)]
+        qb = unwrapped(qa, q[torch.as_tensor(v)], oracle.limits[a])
+        checks = check_straight_moves(rig, a, qa, qb, resolution=screen_m, boom_only=True)
+        bad[a, u, v] = ~checks.clear(margin=oracle.margin).numpy()
     return bad
 
 
@@ -154,10 +258,14 @@ def seeded(inst: Instance) -> bool:
     return inst.collars is not None and inst.base_y is not None and inst.park_points is not None
 
 
-def seed_routes(inst: Instance, kind: str) -> list[list[int]]:
+def seed_routes(inst: Instance, kind: str, band_m: float = 1.0) -> list[list[int]]:
+    """The routes of a seed: the spec's ``naive`` and ``nearest``, or a sweep (:mod:`pipeline.round.seeds`)."""
+    if kind.startswith("sweep"):
+        return sweep_routes(inst, -1 if "-y" in kind else 1, band_m * (2 if kind.endswith("wide") else 1))
     return {"naive": naive_routes, "nearest": nearest_routes}[kind](inst)
 
 
-def baseline(inst: Instance, oracle, kind: str, settings: RoundSettings) -> Timeline:
-    """The spec's ``naive`` or ``nearest`` round, with the same conflict handling."""
-    return resolve(inst, seed_routes(inst, kind), oracle, settings.max_repairs)
+def baseline(inst: Instance, oracle, kind: str, settings: RoundSettings, book: MoveBook | None = None) -> Timeline:
+    """The spec's ``naive`` or ``nearest`` round, with the same conflict handling (and, given the
+    planner's ``book``, the same moves)."""
+    return _Timer(inst, oracle, settings, book)(seed_routes(inst, kind))

@@ -5,15 +5,14 @@ same moves with the same conflict handling:
 
 1. each boom's joint solution of each hole is the reach table's (the hybrid's answer with the other
    booms at park); a boom can drill a hole when its row is ``ok``;
-2. move costs are the time model's synchronised straight-line moves between those solutions
-   (:func:`pipeline.round.kinematic.kinematic_round`): the routing cost, the timeline's durations
-   and the trajectory rows all use them;
-3. the conflict loop (:func:`pipeline.round.plan.plan_round`) and the baselines
-   (:func:`pipeline.round.plan.baseline`) share one oracle, the real boom-boom clearances;
-4. afterwards every move of the optimised round is checked for the boom's own self and tunnel
-   clearances at 1 cm of point travel (:func:`pipeline.motion.checks.check_path`); a move that is not
-   clear is counted under ``moves.straight_not_clear`` with its reason, never hidden (the boom-boom
-   side of every move is the oracle's, at every instant).
+2. move costs start as the time model's synchronised straight-line moves between those solutions
+   (:func:`pipeline.round.kinematic.kinematic_round`);
+3. the planner (:func:`pipeline.round.plan.plan_round`) and the baselines share one oracle (the real
+   boom-boom clearances) and one move book (:mod:`pipeline.round.detours`): every move a candidate
+   uses is checked for the boom's own self and tunnel clearances at 1 cm of point travel before it
+   is timed, and one that is not clear is re-planned (retract, or OMPL) and its detour's duration,
+   motion and rows used from then on; a move nothing made clear is reported (``moves.failed``,
+   ``moves_not_clear`` with the reasons), never hidden.
 """
 
 from __future__ import annotations
@@ -69,33 +68,21 @@ def _reasons(reach: Reach, ids, rig: Rig) -> tuple[str, ...]:
     return tuple(out)
 
 
-def check_moves(inst, oracle, tl: Timeline, rig: Rig) -> tuple[dict, list[dict]]:
-    """Each move of the timeline (straight line, the boom's own self and tunnel clearances at 1 cm)."""
-    from pipeline.motion.checks import check_path
-    from pipeline.motion.path import Path
-
-    H, kinds, rows = inst.n_holes, {"straight": 0, "straight_not_clear": 0}, []
-    for b, route in enumerate(tl.routes):
-        nodes = [H, *route, H]
-        for k in range(len(nodes) - 1):
-            qa, qb = oracle.joints[b][nodes[k]], oracle.joints[b][nodes[k + 1]]
-            if float(inst.move_s[b, nodes[k], nodes[k + 1]]) <= 0:
-                continue
-            path = Path.through(torch.stack([qa, qb]), oracle.limits[b])
-            c = check_path(rig, b, path, {j: rig.booms[j].park for j in range(len(rig)) if j != b})
-            ok = c.self >= 0 and c.tunnel >= 0
-            kinds["straight" if ok else "straight_not_clear"] += 1
-            if not ok:
-                name = lambda n: "park" if n == H else inst.hole_ids[n]  # noqa: E731
-                rows.append({"boom": rig.names[b], "from": name(nodes[k]), "to": name(nodes[k + 1]),
-                             "self_m": c.self, "tunnel_m": c.tunnel})
-    return kinds, rows
+def move_report(inst, rp: RoundPlan, rig: Rig) -> tuple[dict, list[dict]]:
+    """The round's moves by kind (straight, retract, planned, failed) and every failed one with its
+    reason (:mod:`pipeline.round.detours`: the planner looked at each before timing it)."""
+    if rp.book is None:
+        return {}, []
+    counts, failed = rp.book.kinds(rp.timeline.routes)
+    H = inst.n_holes
+    name = lambda n: "park" if n == H else inst.hole_ids[n]  # noqa: E731
+    rows = [{"boom": rig.names[b], "from": name(u), "to": name(v), "reason": rp.book.reason.get((b, u, v), "")}
+            for b, u, v in failed]
+    return counts, rows
 
 
-def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: RoundSettings,
-                   baselines: bool = True, moves: bool = True, say=None) -> RoundResult:
-    """Plan the round of ``plan`` on ``rig`` from its reach table (module docstring)."""
-    say = say or (lambda _m: None)
+def round_instance(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: RoundSettings):
+    """The instance, its oracle and each boom's joint solutions ``(H, n)`` of ``plan`` from its reach table."""
     ids = plan.holes["hole_id"].astype(str).tolist()
     H = len(ids)
     t = reach.table[reach.table["status"] != INVALID]
@@ -109,15 +96,24 @@ def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
     prec = precedence_indices(settings.precedence, ids)
     inst, oracle = kinematic_round(rig, ids, joints, reach_ok, lengths, motions, collars, prec, settings,
                                    _reasons(reach, ids, rig))
+    return inst, oracle, joints
+
+
+def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: RoundSettings,
+                   baselines: bool = True, moves: bool = True, say=None) -> RoundResult:
+    """Plan the round of ``plan`` on ``rig`` from its reach table (module docstring)."""
+    say = say or (lambda _m: None)
+    inst, oracle, joints = round_instance(rig, plan, reach, motions, settings)
     started = time.perf_counter()
-    rp = plan_round(inst, oracle, settings, progress=say)
+    rp = plan_round(inst, oracle, settings, progress=say, baselines=baselines)
     say(f"planned in {rp.planning_s:.1f} s: makespan {rp.timeline.makespan:.1f} s")
     naive = nearest = None
     if baselines:
-        naive = rp.baselines.get("naive") or baseline(inst, oracle, "naive", settings)
-        nearest = rp.baselines.get("nearest") or baseline(inst, oracle, "nearest", settings)
+        naive = rp.baselines.get("naive") or baseline(rp.inst, oracle, "naive", settings, rp.book)
+        nearest = rp.baselines.get("nearest") or baseline(rp.inst, oracle, "nearest", settings, rp.book)
+    inst = rp.inst if rp.book is None else rp.book.apply(rp.inst)  # the baselines' detours too
     names = rig.booms[0].boom.joint_names
-    kinds, not_clear = check_moves(inst, oracle, rp.timeline, rig) if moves else (None, [])
+    kinds, not_clear = move_report(inst, rp, rig) if moves else (None, [])
     table = round_table(inst, rp.timeline, [j.numpy() for j in joints], names)
     traj = trajectory_table(inst, rp.timeline, oracle, names)
 
@@ -127,7 +123,8 @@ def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
                                         "waiting_s": sum(_times(inst, tl, b)["waiting_s"] for b in range(len(rig)))}
 
     s = summary(inst, rp.timeline, rp.lower_bound_s, naive, nearest, [m.base for m in rig.booms], rig.d_boom, kinds,
-                rig=rig.name, planning_s=rp.planning_s, routing_solves=rp.rounds, seed=rp.seed, kept_seed=rp.kept_seed,
+                rig=rig.name, planning_s=rp.planning_s, baselines_s=rp.baselines_s, stopped=rp.stopped,
+                routing_solves=rp.rounds, seed=rp.seed, kept_seed=rp.kept_seed,
                 naive_round=extra(naive),
                 nearest_round=extra(nearest), moves_not_clear=not_clear,
                 total_s=time.perf_counter() - started)

@@ -5,8 +5,9 @@
   a hole no boom can drill keeps its row (``status = unreachable``, its reason, no boom, no times);
 - trajectory table (spec section 7): ``boom, t, q1 .. qn, event, hole_id``, every boom from park to
   park; a row's event names what starts there (park, move, collar, drill, retract, wait, done).
-  Moves are the oracle's synchronised straight lines, sampled by
-  :func:`pipeline.round.oracle.move_rows` within ``traj_tol_m`` of the planned motion; full-turn
+  Moves are the oracle's (the synchronised straight line, or the move's detour: retract or planned,
+  stopping at each waypoint), sampled by :meth:`pipeline.round.oracle.KinematicOracle.rows` within
+  ``traj_tol_m`` of the planned motion; full-turn
   joints stay continuous along the file (they may leave [-180, 180] degrees). A boom done before the
   makespan stays at its last row.
 """
@@ -18,7 +19,6 @@ import pandas as pd
 import torch
 
 from pipeline.round.instance import Instance
-from pipeline.round.oracle import move_rows
 from pipeline.round.timeline import Timeline, boom_times
 
 
@@ -44,14 +44,13 @@ def trajectory_table(inst: Instance, tl: Timeline, oracle, joint_names) -> pd.Da
     for b, route in enumerate(tl.routes):
         q_cur = oracle.joints[b][H].clone()
         ts, qs, ev, hid = [0.0], [q_cur.numpy()], ["park"], [""]
-        ready = 0.0
+        ready, node = 0.0, H
         for k, tgt in enumerate([*route, H]):
             ms, ar = float(tl.move_start[b][k]), float(tl.arrive[b][k])
             if ms > ready and k > 0:
                 ts.append(ready), qs.append(q_cur.numpy()), ev.append("wait"), hid.append("")
             if ar > ms:
-                rt, rq = move_rows(q_cur, oracle.joints[b][tgt], oracle.limits[b], oracle.levers[b].numpy(),
-                                   oracle.traj_tol_m)
+                rt, rq = oracle.rows(b, node, tgt, q_cur)
                 for t, q in zip(rt[:-1], rq[:-1], strict=True):
                     ts.append(ms + float(t)), qs.append(q), ev.append("move"), hid.append("")
                 q_cur = torch.as_tensor(rq[-1])
@@ -62,7 +61,7 @@ def trajectory_table(inst: Instance, tl: Timeline, oracle, joint_names) -> pd.Da
             for phase, dur in zip(("collar", "drill", "retract"), inst.phases[tgt], strict=True):
                 ts.append(t), qs.append(q_cur.numpy()), ev.append(phase), hid.append(name)
                 t += float(dur)
-            ready = t
+            ready, node = t, tgt
         df = pd.DataFrame(np.asarray(qs), columns=list(joint_names))
         df.insert(0, "t", ts)
         df.insert(0, "boom", inst.booms[b])

@@ -1,0 +1,129 @@
+"""Every move a round uses is clear of the boom itself and the tunnel: the straight line, or a detour.
+
+The routing and the timeline price a move by the synchronised straight line between two joint
+solutions. Before a set of routes is timed, :meth:`MoveBook.ensure` looks at every move it uses that
+was not looked at before:
+
+1. all of them at once, straight, at 1 cm of point travel (:func:`pipeline.motion.checks.
+   check_straight_moves`, the dense check of :func:`pipeline.motion.checks.check_path`): a move whose
+   self and tunnel clearances hold at every sample stays straight;
+2. each other one is planned by :func:`pipeline.motion.moves.plan_move` (``retract``: feed back,
+   travel, feed forward; then ``planned``: OMPL's RRTConnect and simplifier), clear of self, tunnel
+   and the other booms standing at their parks, and becomes the oracle's detour for that move
+   (:meth:`pipeline.round.oracle.KinematicOracle.set_detour`): its duration goes into ``move_s``, its
+   motion into the boom-boom checks of the timeline and into the trajectory rows;
+3. a move no attempt made clear is ``failed``: it keeps the straight line and is reported with the
+   reason (``moves_not_clear`` of the round's JSON), never hidden.
+
+A move's answer holds for its reverse too (the same configurations backwards; a rest-to-rest path
+reversed takes the same time), so both are recorded at once. The book only grows: a move looked at
+keeps its answer, so a timeline timed earlier stays valid when later routes add detours, and the
+routing solved after it pays the detours' real durations.
+
+Boom-boom clearance of a straight move is not this module's business: it depends on where the
+other booms are at that time, which the timeline's oracle checks (and the routing pays for a move
+that another boom at park blocks: :func:`pipeline.round.plan.park_blocked`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+import torch
+
+from pipeline.motion.checks import check_straight_moves
+from pipeline.motion.moves import PlannerSettings, plan_move
+from pipeline.motion.path import Path, unwrapped
+from pipeline.round.instance import Instance
+
+UNKNOWN, STRAIGHT, RETRACT, PLANNED, FAILED = range(5)
+KIND = {STRAIGHT: "straight", RETRACT: "retract", PLANNED: "planned", FAILED: "failed"}
+
+
+def used_moves(routes: list[list[int]], park: int) -> list[np.ndarray]:
+    """Per boom, its moves ``(k, 2)`` (from node, to node) park to park along its route."""
+    out = []
+    for r in routes:
+        nodes = np.array([park, *r, park])
+        out.append(np.stack([nodes[:-1], nodes[1:]], -1) if r else np.zeros((0, 2), np.int64))
+    return out
+
+
+class MoveBook:
+    """What is known of each boom's moves: ``status (B, H + 1, H + 1)`` (UNKNOWN, STRAIGHT, RETRACT,
+    PLANNED, FAILED), the reasons of detours and failures, and the planning seconds spent."""
+
+    def __init__(self, oracle, n_holes: int, resolution: float = 0.01, planner: PlannerSettings | None = None):
+        self.oracle, self.rig, self.H = oracle, oracle.rig, n_holes
+        self.resolution = resolution
+        self.planner = planner or PlannerSettings(time_s=2.0, simplify_s=0.5)
+        B = len(oracle.joints)
+        self.status = np.zeros((B, n_holes + 1, n_holes + 1), np.int8)
+        self.reason: dict[tuple[int, int, int], str] = {}
+        self.durations: dict[tuple[int, int, int], float] = {}  # (boom, from, to) -> the detour's seconds
+        self.seconds = 0.0
+
+    def apply(self, inst: Instance) -> Instance:
+        """``inst`` with every detour's duration known so far (any timeline timed with this book is
+        valid on it: a move's answer never changes once given)."""
+        if not self.durations:
+            return inst
+        move_s = inst.move_s.copy()
+        for (b, u, v), d in self.durations.items():
+            move_s[b, u, v] = d
+        return dataclasses.replace(inst, move_s=move_s)
+
+    def ensure(self, inst: Instance, routes: list[list[int]]) -> Instance:
+        """``inst`` with the durations of every detour planned for ``routes`` (module docstring)."""
+        started = time.perf_counter()
+        move_s, changed = inst.move_s, False
+        for b, moves in enumerate(used_moves(routes, self.H)):
+            moves = moves[moves[:, 0] != moves[:, 1]]
+            todo = np.unique(moves[self.status[b, moves[:, 0], moves[:, 1]] == UNKNOWN], axis=0)
+            if not len(todo):
+                continue
+            q = self.oracle.joints[b]
+            limits = self.oracle.limits[b]
+            qa = q[torch.as_tensor(todo[:, 0])]
+            qb = unwrapped(qa, q[torch.as_tensor(todo[:, 1])], limits)
+            checks = check_straight_moves(self.rig, b, qa, qb, resolution=self.resolution)
+            clear = checks.clear(("self", "tunnel")).numpy()
+            u, v = todo[clear, 0], todo[clear, 1]
+            self.status[b, u, v] = self.status[b, v, u] = STRAIGHT
+            for k in np.flatnonzero(~clear):
+                if not changed:
+                    move_s, changed = move_s.copy(), True
+                self._detour(b, int(todo[k, 0]), int(todo[k, 1]), qa[k], qb[k], move_s)
+        self.seconds += time.perf_counter() - started
+        return dataclasses.replace(inst, move_s=move_s) if changed else inst
+
+    def _detour(self, b: int, u: int, v: int, qa: torch.Tensor, qb: torch.Tensor, move_s: np.ndarray) -> None:
+        m = plan_move(self.rig, b, qa, qb, self.oracle.limits[b], kinds=("retract", "planned"),
+                      planner=self.planner, resolution=self.resolution)
+        if not m.clear:
+            self.status[b, u, v] = self.status[b, v, u] = FAILED
+            self.reason[(b, u, v)] = self.reason[(b, v, u)] = m.reason
+            return
+        kind = RETRACT if m.kind == "retract" else PLANNED
+        back = Path.through(m.path.waypoints.flip(0), self.oracle.limits[b])
+        for (x, y), path in (((u, v), m.path), ((v, u), back)):
+            self.oracle.set_detour(b, x, y, path)
+            move_s[b, x, y] = self.durations[(b, x, y)] = path.duration
+            self.status[b, x, y] = kind
+            self.reason[(b, x, y)] = m.reason
+
+    def kinds(self, routes: list[list[int]]) -> tuple[dict[str, int], list[tuple[int, int, int]]]:
+        """Counts of the routes' moves by kind, and the failed ones ``(boom, from, to)``."""
+        counts = {name: 0 for name in KIND.values()}
+        failed = []
+        for b, moves in enumerate(used_moves(routes, self.H)):
+            for u, v in moves:
+                if u == v:
+                    continue
+                s = int(self.status[b, u, v])
+                counts[KIND.get(s, "unchecked")] = counts.get(KIND.get(s, "unchecked"), 0) + 1
+                if s == FAILED:
+                    failed.append((b, int(u), int(v)))
+        return counts, failed

@@ -1,0 +1,170 @@
+"""Detours of the round (issue 20): a used move that breaks self or tunnel clearance is re-planned,
+and the oracle, the durations and the trajectory rows follow the detour.
+
+Independent values: the batched straight check against :func:`check_path` one move at a time, and
+against a five times finer sampling; the detour's clearance re-checked by :func:`check_path`; the
+oracle's positions against the path's own; the rows' interpolation against the path at the boom's
+frame origins (forward kinematics).
+"""
+
+import numpy as np
+import pytest
+import torch
+
+from pipeline.assembly.rig import build_rig
+from pipeline.core.config import load_group_file
+from pipeline.motion.checks import check_path, check_straight_moves
+from pipeline.motion.path import Path, unwrapped
+from pipeline.motion.timing import load_motion, move_time
+from pipeline.plans.demo_face import demo_face
+from pipeline.plans.reach import reach_table, rig_solvers
+from pipeline.round.detours import FAILED, PLANNED, RETRACT, STRAIGHT, MoveBook
+from pipeline.round.instance import Instance, RoundSettings, drill_phases
+from pipeline.round.oracle import _positions
+from pipeline.round.schedule import round_instance
+from pipeline.round.seeds import balanced_strips, sweep_routes
+from pipeline.solvers.hybrid import HybridSettings
+
+D = torch.float64
+
+
+@pytest.fixture(scope="module")
+def demo(safety):
+    rig = build_rig("twin", load_group_file("tunnel", "horseshoe"), load_group_file("safety", "paper"))
+    plan = demo_face(safety=safety)
+    reach = reach_table(plan, rig, rig_solvers(rig, lambda b: None, HybridSettings()), "hybrid")
+    motions = [load_motion(m.boom) for m in rig.booms]
+    inst, oracle, _ = round_instance(rig, plan, reach, motions, RoundSettings())
+    return rig, inst, oracle
+
+
+def _moves(inst, b, k):
+    """Boom b's moves between consecutive holes it can drill (plan order), the first k."""
+    h = np.flatnonzero(inst.reach[b])
+    return np.stack([h[:-1], h[1:]], -1)[:k]
+
+
+def test_straight_check_is_check_path_batched(demo):
+    rig, inst, oracle = demo
+    b = 0
+    uv = _moves(inst, b, 16)
+    q = oracle.joints[b]
+    qa = q[torch.as_tensor(uv[:, 0])]
+    qb = unwrapped(qa, q[torch.as_tensor(uv[:, 1])], oracle.limits[b])
+    batch = check_straight_moves(rig, b, qa, qb, chunk=3000)  # several chunks: the chunking is exercised
+    fine = check_straight_moves(rig, b, qa, qb, resolution=0.002)
+    for k in range(len(uv)):
+        one = check_path(rig, b, Path.through(torch.stack([qa[k], qb[k]]), oracle.limits[b]))
+        assert float(batch.least["self"][k]) == pytest.approx(one.self, abs=1e-9)
+        assert float(batch.least["tunnel"][k]) == pytest.approx(one.tunnel, abs=1e-9)
+        assert float(batch.least["boom R"][k]) == pytest.approx(one.boom, abs=1e-9)
+        for kind in ("self", "tunnel", "boom R"):  # the floor bounds every instant: a finer sampling
+            assert float(batch.floor[kind][k]) <= float(fine.least[kind][k]) + 1e-12
+    assert not bool(batch.clear().all()) or not bool(batch.certified().all())  # not vacuous on this face
+
+
+def _unclear_move(rig, inst, oracle):
+    for b in range(inst.n_booms):
+        uv = _moves(inst, b, 200)
+        q = oracle.joints[b]
+        qa = q[torch.as_tensor(uv[:, 0])]
+        qb = unwrapped(qa, q[torch.as_tensor(uv[:, 1])], oracle.limits[b])
+        bad = ~check_straight_moves(rig, b, qa, qb).clear(("self", "tunnel"))
+        if bool(bad.any()):
+            k = int(torch.nonzero(bad)[0])
+            return b, int(uv[k, 0]), int(uv[k, 1])
+    raise AssertionError("the demo face has no move between consecutive holes that breaks self or tunnel")
+
+
+def test_book_detours_a_move_that_breaks_clearance_and_the_oracle_follows_it(demo):
+    rig, inst, oracle = demo
+    b, u, v = _unclear_move(rig, inst, oracle)
+    book = MoveBook(oracle, inst.n_holes)
+    routes = [[] for _ in range(inst.n_booms)]
+    routes[b] = [u, v]
+    new = book.ensure(inst, routes)
+    assert book.status[b, u, v] in (RETRACT, PLANNED, FAILED)
+    assert book.status[b, inst.n_holes, u] != 0 and book.status[b, v, inst.n_holes] != 0  # park legs looked at
+    if book.status[b, u, v] == FAILED:
+        pytest.fail(f"no detour for {b, u, v}: {book.reason[(b, u, v)]}")
+    assert book.status[b, v, u] == book.status[b, u, v]  # the reverse: the same configurations backwards
+    path, back = oracle.detour(b, u, v), oracle.detour(b, v, u)
+    straight = float(move_time(oracle.joints[b][u], oracle.joints[b][v], oracle.limits[b]))
+    assert new.move_s[b, u, v] == pytest.approx(path.duration) and path.duration > straight
+    assert back.duration == pytest.approx(path.duration)
+    assert inst.move_s[b, u, v] == pytest.approx(straight)  # the input instance is not touched
+    c = check_path(rig, b, path)  # re-checked on its own, the other boom at park
+    assert c.clear and c.self >= 0 and c.tunnel >= 0, c
+    m = rig.booms[b]
+    with torch.inference_mode():  # the ends are the holes' configurations (up to full turns)
+        for end, node in ((path.waypoints[0], u), (path.waypoints[-1], v), (back.waypoints[-1], u)):
+            assert torch.allclose(m.frames(end[None]), m.frames(oracle.joints[b][node][None]), atol=1e-9)
+
+    # the oracle's positions along the move are the detour's, not the straight line's
+    t = torch.linspace(0, path.duration, 41, dtype=D)
+    motion, speed = oracle.speed_bound(b, np.full(41, u), np.full(41, v))
+    got = _positions(motion, torch.arange(41), t)
+    assert torch.allclose(got, path.positions(t), atol=1e-12)
+    assert float(speed[0]) > 0
+    # a straight move beside it in the same batch keeps the straight profile
+    motion, _ = oracle.speed_bound(b, np.array([u, inst.n_holes]), np.array([v, u]))
+    mid = torch.tensor([path.duration / 2, 0.0], dtype=D)
+    assert torch.allclose(_positions(motion, torch.arange(2), mid)[1], oracle.joints[b][inst.n_holes])
+
+    # trajectory rows: linear in t between them, within 1 mm of the detour at every frame origin
+    rt, rq = oracle.rows(b, u, v, oracle.joints[b][u])
+    ts = torch.linspace(0, path.duration, 400, dtype=D)
+    lin = torch.stack([torch.as_tensor(np.interp(ts.numpy(), rt, rq[:, i])) for i in range(rq.shape[1])], -1)
+    with torch.inference_mode():
+        err = (m.frames(lin)[..., :3, 3] - m.frames(path.positions(ts))[..., :3, 3]).norm(dim=-1).max()
+    assert float(err) <= 0.001 + 1e-9
+    assert rt[-1] == pytest.approx(path.duration)
+
+    again = book.ensure(new, routes)  # known moves are not planned again
+    assert again is new
+
+
+def test_book_keeps_clear_moves_straight(demo):
+    rig, inst, oracle = demo
+    book = MoveBook(oracle, inst.n_holes)
+    for b in range(inst.n_booms):
+        uv = _moves(inst, b, 12)
+        q = oracle.joints[b]
+        qa = q[torch.as_tensor(uv[:, 0])]
+        qb = unwrapped(qa, q[torch.as_tensor(uv[:, 1])], oracle.limits[b])
+        clear = check_straight_moves(rig, b, qa, qb).clear(("self", "tunnel")).numpy()
+        routes = [[] for _ in range(inst.n_booms)]
+        routes[b] = [int(h) for h in np.unique(uv)]
+        book.ensure(inst, routes)
+        for (u, v), ok in zip(uv, clear, strict=True):
+            assert (book.status[b, u, v] == STRAIGHT) == bool(ok)
+            assert (oracle.detour(b, u, v) is None) == bool(ok)
+
+
+def test_sweep_strips_balance_drilling_and_keep_the_booms_apart():
+    g = np.random.default_rng(3)
+    H, B = 60, 3
+    collars = np.stack([np.full(H, 6.5), g.uniform(-3, 3, H), g.uniform(0.5, 5, H)], 1)
+    base_y = np.array([1.6, 0.0, -1.6])
+    reach = np.ones((B, H), bool)
+    forced = np.argsort(collars[:, 1])[-2:]
+    reach[0, forced] = False  # two of the highest holes in y (boom 0's strip) boom 0 cannot drill
+    move = np.ones((B, H + 1, H + 1))
+    inst = Instance(("L", "M", "R"), tuple(f"h{i}" for i in range(H)), reach, drill_phases(g.uniform(2, 6, H)),
+                    move, (), collars, base_y, np.zeros((B, 3)))
+    strips = balanced_strips(inst)
+    drill = np.array([inst.drill_s[strips == b].sum() for b in range(B)])
+    assert np.ptp(drill) <= 2 * inst.drill_s.max()  # within about a hole of the mean each
+    y = collars[:, 1]
+    assert (strips[forced] == 1).all()  # to the boom nearest in base y that can drill them
+    free = np.ones(H, bool)
+    free[forced] = False
+    assert y[free & (strips == 0)].min() >= y[free & (strips == 1)].max() - 1e-12  # strips in base order
+    assert y[strips == 1].min() >= y[strips == 2].max() - 1e-12
+    for direction in (-1, 1):
+        routes = sweep_routes(inst, direction, band_m=1.0)
+        assert sorted(h for r in routes for h in r) == list(range(H))
+        for r in routes:  # bands visited in the sweep's direction
+            key = -direction * y[r]
+            band = np.floor((key - (-direction * y).min()) / 1.0)
+            assert (np.diff(band) >= 0).all()
