@@ -97,14 +97,27 @@ def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callab
     timer = _Timer(inst, oracle, settings, book)
     lb = lower_bound(inst)
     best, seed, done = None, None, {}
+    last_timing = 0.0  # seconds the last candidate took to time (moves looked at, waits): the next one's estimate
     if seeded(inst):  # the sweeps, timed: the best is a candidate and the routing's start
         for kind in SEEDS:
+            t_timing = time.perf_counter()
             tl = timer(seed_routes(inst, kind, settings.sweep_band_m))
+            last_timing = max(last_timing, time.perf_counter() - t_timing)
             say(f"seed {kind}: makespan {tl.makespan:.1f} s, {tl.conflicts_left} conflicts left")
             if _better(tl, best):
                 best, seed = tl, kind
+    def remaining() -> float:
+        return settings.budget_s - (time.perf_counter() - t0)
+
+    def limit() -> float:
+        base = time_limit_s if time_limit_s is not None else settings.time_limit_s
+        return max(0.1, min(base, remaining()))
+
+    base_limit = time_limit_s if time_limit_s is not None else settings.time_limit_s
+    good = best is not None and best.conflicts_left == 0 and best.makespan <= settings.stop_ratio * lb
+    routing = not good and (best is None or remaining() >= base_limit + last_timing)
     blocked = None
-    if settings.blocked_penalty_s > 0 and inst.n_booms > 1:
+    if routing and settings.blocked_penalty_s > 0 and inst.n_booms > 1:
         blocked = park_blocked(inst, oracle, settings.blocked_neighbours, settings.blocked_screen_m)
         say(f"moves blocked by another boom at park: {int(blocked.sum())} of the {settings.blocked_neighbours} "
             "shortest per node (penalised in the routing)")
@@ -118,20 +131,16 @@ def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callab
             penalty &= (book.status != RETRACT) & (book.status != PLANNED)
         return replace(cur, move_s=cur.move_s + settings.blocked_penalty_s * penalty)
 
-    def remaining() -> float:
-        return settings.budget_s - (time.perf_counter() - t0)
-
-    def limit() -> float:
-        base = time_limit_s if time_limit_s is not None else settings.time_limit_s
-        return max(0.1, min(base, remaining()))
-
     penalised: dict[tuple[int, int], float] = {}
     apart: set[tuple[int, int, int, int]] = set()
     stopped = ""
     rounds = 0
     r = None
-    if best is not None and best.conflicts_left == 0 and best.makespan <= settings.stop_ratio * lb:
+    if good:
         stopped = f"a seed is within stop_ratio {settings.stop_ratio} of the lower bound"
+    elif not routing:
+        stopped = (f"budget_s ({settings.budget_s:g} s): the seeds left too little for a routing solve and its "
+                   "timing")
     else:
         r = route(costed(), settings, time_limit_s=limit(), initial=None if best is None else best.routes)
         rounds = 1
