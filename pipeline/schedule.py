@@ -28,6 +28,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import hydra
+import numpy as np
 import pandas as pd
 from omegaconf import DictConfig
 
@@ -43,6 +44,7 @@ from pipeline.motion.timing import load_motion
 from pipeline.plans.model import COLLAR
 from pipeline.plans.reach import reach_table, rig_solvers
 from pipeline.plans.read import read_plan
+from pipeline.plans.solutions import spreadsheet_safe
 from pipeline.round.instance import parse_round
 from pipeline.round.schedule import schedule_round
 from pipeline.solvers.base import NetworkSolver
@@ -151,7 +153,7 @@ def run(cfg: DictConfig) -> dict:
         with tempfile.TemporaryDirectory(prefix=f".{files['round'].stem}.", dir=folder) as tmp:
             staged = {Path(tmp) / p.name: p for p in files.values()}
             tmp_of = {k: Path(tmp) / p.name for k, p in files.items()}
-            write_csv(table, tmp_of["round"])
+            write_csv(spreadsheet_safe(table), tmp_of["round"])
             write_csv(res.trajectory, tmp_of["trajectory"])
             write_json(summary, tmp_of["json"])
             if settings.figures:
@@ -192,6 +194,7 @@ def run_benchmark(cfg: DictConfig, settings: ScheduleSettings) -> dict:
     hybrid = parse(HybridSettings, cfg.solver, "solver")
     tracking = TrackingSettings.from_config(cfg.tracking)
     folder = require_writable(project_path(cfg.paths.data) / "benchmark", "paths.data/benchmark")
+    (folder / "rounds").mkdir(exist_ok=True)
     source = None
     if settings.network or settings.model_uri:
         source = settings.model_uri or project_path(cfg.paths.data) / "models" / f"{settings.network}.pt"
@@ -205,7 +208,8 @@ def run_benchmark(cfg: DictConfig, settings: ScheduleSettings) -> dict:
     with stage_run(tracking, "schedule-benchmark", {"stage": "schedule", "mode": "benchmark"}) as mlrun:
         mlrun.log_params({"schedule": asdict(settings), "round": as_dict(cfg.round), "solver": as_dict(cfg.solver)})
         table = round_benchmark(settings.bench_faces, settings.bench_rigs, cfg.tunnel, cfg.safety, hybrid,
-                                round_settings, first_start, settings.bench_seed, lambda m: log.info("%s", m))
+                                round_settings, first_start, settings.bench_seed, lambda m: log.info("%s", m),
+                                folder / "rounds")
         write_csv(table, folder / "round_benchmark.csv")
         write_text(markdown(table), folder / "round_benchmark.md")
         mlrun.log_table(table, "round_benchmark.json")
@@ -232,15 +236,19 @@ def metrics(summary: dict) -> dict:
 
 
 def with_invalid_rows(table: pd.DataFrame, plan) -> pd.DataFrame:
-    """The round table plus one ``invalid`` row per unreadable plan row (its problems as the reason)."""
+    """The round table plus one ``invalid`` row per unreadable plan row (its problems as the reason),
+    every row where it stood in the plan (by line in the file), as ``solve`` keeps them."""
     if not plan.problems:
         return table
     by_row: dict[int, list] = {}
     for p in plan.problems:
         by_row.setdefault(p.row, []).append(p)
     rows = [{"hole_id": ps[0].hole_id or f"row {r}", "boom": "", "status": "invalid",
-             "reason": "; ".join(f"{p.column}: {p.message}" for p in ps)} for r, ps in sorted(by_row.items())]
-    out = pd.concat([table, pd.DataFrame(rows)], ignore_index=True)
+             "reason": f"row {r}: " + "; ".join(f"{p.column}: {p.message}" for p in ps)}
+            for r, ps in sorted(by_row.items())]
+    lines = np.arange(len(table)) if plan.lines is None else np.asarray(plan.lines)
+    order = np.argsort(np.concatenate([lines, np.array(sorted(by_row), dtype=lines.dtype)]), kind="stable")
+    out = pd.concat([table, pd.DataFrame(rows)], ignore_index=True).iloc[order].reset_index(drop=True)
     out["order"] = out["order"].astype("Int64")
     return out
 

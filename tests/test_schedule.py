@@ -139,10 +139,14 @@ def test_joint_speeds_respected_between_trajectory_rows(small_round, jumbo8):
 def test_unreachable_hole_keeps_its_row_and_single_hole_works(face_plan, make_cfg):
     tmp, holes = face_plan
     far = pd.DataFrame([["FAR", 14.0, 0.0, 2.0, 17.5, 0.0, 2.0]], columns=COLS)
+    bad = pd.DataFrame([["BAD", "abc", 0.0, 2.0, 9.5, 0.0, 2.0]], columns=COLS)
     plan = tmp / "two.csv"
-    pd.concat([holes[COLS].iloc[[3]], far], ignore_index=True).to_csv(plan, index=False)
+    pd.concat([holes[COLS].iloc[[3]], bad, far], ignore_index=True).to_csv(plan, index=False)
     s = schedule.run(make_cfg(tmp, *FAST, f"plan={plan}", "schedule.replay=false"))
     r = pd.read_csv(tmp / "two_round.csv", keep_default_na=False, na_values=[""])
+    assert list(r["hole_id"]) == [holes["hole_id"].iloc[3], "BAD", "FAR"]  # the plan's order, invalid row in place
+    assert r.loc[1, "status"] == "invalid" and "row 3" in r.loc[1, "reason"] and "collar_x" in r.loc[1, "reason"]
+    assert s["invalid_rows"] == 1
     row = r[r["hole_id"] == "FAR"].iloc[0]
     assert row["status"] == "unreachable" and "no boom can drill it" in row["reason"] and pd.isna(row["boom"])
     assert s["holes_drilled"] == 1 and s["holes_unreachable"] == 1
@@ -194,3 +198,19 @@ def test_replay_renders_in_a_headless_browser(small_round):
     spec.loader.exec_module(script)
     problems = script.check(tmp / "small_round_replay.html", tmp / "replay.png")
     assert not problems, problems
+
+
+@pytest.mark.slow
+def test_round_benchmark_writes_its_table_and_each_cells_trajectory(face_plan, make_cfg):
+    tmp, _ = face_plan
+    out = schedule.run(make_cfg(tmp, *FAST, "schedule.benchmark=true", "schedule.bench_faces=[20]",
+                                "schedule.bench_rigs=[single]"))
+    assert out == {"rows": 1}
+    table = pd.read_csv(tmp / "data" / "benchmark" / "round_benchmark.csv")
+    row = table.iloc[0]
+    assert row["rig"] == "single" and row["drilled"] == row["holes"] > 0
+    assert row["lower_bound_s"] <= row["makespan_s"] <= min(row["naive_s"], row["nearest_s"]) + 1e-9
+    assert row["moves_failed"] == 0
+    traj = pd.read_csv(tmp / "data" / "benchmark" / "rounds" / "gen20_single_trajectory.csv", keep_default_na=False)
+    assert traj["t"].max() == pytest.approx(row["makespan_s"])
+    assert (traj["event"] == "collar").sum() == row["drilled"]

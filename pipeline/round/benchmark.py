@@ -11,12 +11,14 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import pandas as pd
 
 from pipeline.assembly.build import build_safety, load_boom
 from pipeline.assembly.rig import build_rig
 from pipeline.core.config import as_dict, load_group_file
+from pipeline.core.io import write_csv
 from pipeline.motion.timing import load_motion
 from pipeline.plans.demo_face import demo_face
 from pipeline.plans.faces import generated_face
@@ -37,8 +39,10 @@ def rig_tunnel(name: str, default) -> dict:
 
 
 def round_benchmark(faces: Sequence, rigs: Sequence[str], tunnel_cfg, safety_cfg, hybrid: HybridSettings,
-                    settings: RoundSettings, first_start: Callable, seed: int = 0, say=print) -> pd.DataFrame:
-    """One row per (face, rig); ``faces``: "demo" or hole counts."""
+                    settings: RoundSettings, first_start: Callable, seed: int = 0, say=print,
+                    trajectories: Path | None = None) -> pd.DataFrame:
+    """One row per (face, rig); ``faces``: "demo" or hole counts; ``trajectories``: a folder to write
+    each cell's trajectory file into (``<face>_<rig>_trajectory.csv``)."""
     rows = []
     for rig_name in rigs:
         tunnel = rig_tunnel(rig_name, tunnel_cfg)
@@ -62,8 +66,14 @@ def round_benchmark(faces: Sequence, rigs: Sequence[str], tunnel_cfg, safety_cfg
                    "planning_s": s["planning_s"], "reach_s": reach_s,
                    "min_boom_clearance_m": s["min_boom_clearance_m"] if len(rig) > 1 else float("nan"),
                    "waits": s["waits_inserted"], "sequential": s["sequential_fallback"],
-                   "conflicts_left": s["conflicts_left"], "moves_not_clear": s["moves"]["straight_not_clear"]}
+                   "conflicts_left": s["conflicts_left"],
+                   "detours": s["moves"].get("retract", 0) + s["moves"].get("planned", 0),
+                   "moves_failed": s["moves"].get("failed", 0), "seed": s.get("seed"), "stopped": s.get("stopped"),
+                   "baselines_s": s.get("baselines_s")}
             rows.append(row)
+            if trajectories is not None:  # for the independent check (scripts/check_round.py)
+                tag = "demo" if face == "demo" else f"gen{face}"
+                write_csv(res.trajectory, trajectories / f"{tag}_{rig_name}_trajectory.csv")
             say(f"{row['face']} x {rig_name}: makespan {row['makespan_s']:.0f} s, bound {row['lower_bound_s']:.0f} s, "
                 f"naive {row['naive_s']:.0f} s, nearest {row['nearest_s']:.0f} s, planned in {row['planning_s']:.1f} s")
     return pd.DataFrame(rows)
@@ -71,7 +81,7 @@ def round_benchmark(faces: Sequence, rigs: Sequence[str], tunnel_cfg, safety_cfg
 
 def markdown(table: pd.DataFrame) -> str:
     cols = ["face", "rig", "drilled", "makespan_s", "lower_bound_s", "ratio", "naive_s", "nearest_s", "moving_s",
-            "waiting_s", "planning_s", "min_boom_clearance_m", "waits", "sequential", "moves_not_clear"]
+            "waiting_s", "planning_s", "min_boom_clearance_m", "waits", "sequential", "detours", "moves_failed"]
     out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for _, r in table.iterrows():
         cells = [f"{r[c]:.3f}" if c in ("ratio", "min_boom_clearance_m") else
