@@ -114,8 +114,7 @@ def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callab
         return max(0.1, min(base, remaining()))
 
     base_limit = time_limit_s if time_limit_s is not None else settings.time_limit_s
-    good = best is not None and best.conflicts_left == 0 and best.makespan <= settings.stop_ratio * lb
-    routing = not good and (best is None or remaining() >= base_limit + last_timing)
+    routing = best is None or remaining() >= base_limit + last_timing  # at least one solve, budget allowing
     blocked = None
     if routing and settings.blocked_penalty_s > 0 and inst.n_booms > 1:
         blocked = park_blocked(inst, oracle, settings.blocked_neighbours, settings.blocked_screen_m)
@@ -136,9 +135,7 @@ def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callab
     stopped = ""
     rounds = 0
     r = None
-    if good:
-        stopped = f"a seed is within stop_ratio {settings.stop_ratio} of the lower bound"
-    elif not routing:
+    if not routing:
         stopped = (f"budget_s ({settings.budget_s:g} s): the seeds left too little for a routing solve and its "
                    "timing")
     else:
