@@ -44,34 +44,42 @@ def check(trajectory: Path, rig_name: str, dt: float = 0.005, tunnel: str | None
         "tunnel", "horseshoe"))
     traj = pd.read_csv(trajectory, keep_default_na=False)
     t = np.arange(0.0, float(traj["t"].max()) + dt, dt)
-    booms, frames, out = {}, {}, {"samples": len(t), "dt_s": dt, "booms": {}, "violations": []}
+    out = {"samples": len(t), "dt_s": dt, "booms": {}, "violations": []}
+    booms, safeties, bases = {}, {}, {}
+    for b in node["booms"]:
+        booms[b["name"]] = load_boom(b["boom"])
+        safeties[b["name"]] = build_safety(booms[b["name"]], tunnel_cfg, load_group_file("safety", "paper"))
+        bases[b["name"]] = torch.tensor(b["base"], dtype=D)
+    own = {name: {} for name in booms}
+    least = np.inf
     with torch.inference_mode():
-        for b in node["booms"]:
-            boom = load_boom(b["boom"])
-            safety = build_safety(boom, tunnel_cfg, load_group_file("safety", "paper"))
-            names = boom.joint_names
-            q = _interp(traj, b["name"], names, t)
-            f = torch.cat([boom.frames(torch.as_tensor(q[s:s + CHUNK])) for s in range(0, len(t), CHUNK)])
-            f[..., :3, 3] += torch.tensor(b["base"], dtype=D)  # the base offset, from the rig file
-            booms[b["name"]], frames[b["name"]] = boom, f
-            c = {k: float(v.min()) for k, v in safety.clearances_from_frames(f).items()}  # tunnel: rig frame
-            rows = traj[traj["boom"] == b["name"]]
-            speed = np.abs(np.diff(rows[list(names)].to_numpy(), axis=0)) / np.diff(rows["t"].to_numpy())[:, None]
-            over = float((speed / np.array(load_motion(boom).joints.v)).max())
-            out["booms"][b["name"]] = {"self_m": c["self"], "tunnel_m": min(c[k] for k in c if k != "self"),
-                                       "speed_over_limit": over}
-            if c["self"] < 0 or min(c.values()) < 0:
-                out["violations"].append(f"boom {b['name']}: clearance {c}")
-            if over > 1 + 1e-9:
-                out["violations"].append(f"boom {b['name']}: a joint at {over:.4f} x its speed")
-        least = np.inf
-        for a, b in combinations(frames, 2):
-            pair = BoomPair(booms[a], booms[b], float(node["d_boom"]))
-            least = min(least, min(float(pair.distances(frames[a][s:s + CHUNK], frames[b][s:s + CHUNK]).amin())
-                                   for s in range(0, len(t), CHUNK)))
-        out["min_boom_distance_m"] = least
-        if least < float(node["d_boom"]):
-            out["violations"].append(f"boom-boom distance {least:.4f} m < d_boom {node['d_boom']}")
+        for s in range(0, len(t), CHUNK):  # chunks of instants: memory stays bounded on long rounds
+            ts = t[s:s + CHUNK]
+            frames = {}
+            for name, boom in booms.items():
+                f = boom.frames(torch.as_tensor(_interp(traj, name, boom.joint_names, ts)))
+                f[..., :3, 3] += bases[name]  # the base offset, from the rig file; the tunnel is in the rig frame
+                frames[name] = f
+                for k, v in safeties[name].clearances_from_frames(f).items():
+                    own[name][k] = min(own[name].get(k, np.inf), float(v.min()))
+            for a, b in combinations(frames, 2):
+                pair = BoomPair(booms[a], booms[b], float(node["d_boom"]))
+                least = min(least, float(pair.distances(frames[a], frames[b]).amin()))
+    for name, boom in booms.items():
+        c = own[name]
+        rows = traj[traj["boom"] == name]
+        step = np.abs(np.diff(rows[list(boom.joint_names)].to_numpy(), axis=0))
+        speed = step / np.diff(rows["t"].to_numpy())[:, None]
+        over = float((speed / np.array(load_motion(boom).joints.v)).max())
+        out["booms"][name] = {"self_m": c["self"], "tunnel_m": min(c[k] for k in c if k != "self"),
+                              "speed_over_limit": over}
+        if min(c.values()) < 0:
+            out["violations"].append(f"boom {name}: clearance {c}")
+        if over > 1 + 1e-9:
+            out["violations"].append(f"boom {name}: a joint at {over:.4f} x its speed")
+    out["min_boom_distance_m"] = least
+    if least < float(node["d_boom"]):
+        out["violations"].append(f"boom-boom distance {least:.4f} m < d_boom {node['d_boom']}")
     return out
 
 

@@ -1,19 +1,23 @@
-"""Plan a round: route, time with waits, feed the conflicts back into the routing, repeat.
+"""Plan a round: seed, route, time with waits, feed the conflicts back into the routing, repeat.
 
-0. the spec's baselines (naive, nearest) are timed with the same conflict handling; the better one
-   is the first candidate and the routing's initial solution (so the optimised round is never worse
-   than the better baseline);
+0. the sweeps (:mod:`pipeline.round.seeds`) and the spec's baselines (naive, nearest) are timed; the
+   best is the first candidate and the routing's initial solution (so the optimised round is never
+   worse than the better baseline);
 1. :func:`pipeline.round.routing.route` allocates and orders the holes (makespan, no conflicts known);
-2. :func:`pipeline.round.timeline.resolve` times the routes and inserts waits until no boom-boom
+2. every candidate's moves are looked at before it is timed (:class:`pipeline.round.detours.MoveBook`:
+   a move that breaks self or tunnel clearance is re-planned, its detour's duration and motion used);
+3. :func:`pipeline.round.timeline.resolve` times the routes and inserts waits until no boom-boom
    conflict is left (or falls back to one boom at a time, checked);
-3. every pair of holes (i on boom a, j on boom b: where each stood, or the hole it was moving to)
+4. every pair of holes (i on boom a, j on boom b: where each stood, or the hole it was moving to)
    whose conflict needed a wait is fed back (:mod:`pipeline.round.routing`: not drilled at the same
    time while on a and b; a soft same-boom cost where one boom can drill both), and the routing
-   starts again from the last routes.
+   starts again from the best routes so far.
 
-The best conflict-free timeline (fewest conflicts left, then makespan) is kept. **Why it ends:** step 3
+The best conflict-free timeline (fewest conflicts left, then makespan) is kept. **Why it ends:** step 4
 runs only when the last timeline revealed a pair not yet fed back, a set that only grows and holds at
-most (B H)^2 entries; and at most ``reopt_rounds`` times (config).
+most (B H)^2 entries; at most ``reopt_rounds`` times; not once the best round is within ``stop_ratio``
+of the lower bound; and not when the planning time left (``budget_s``) is less than one solve plus the
+last timing. The move book looks at each of the B (H + 1)^2 moves at most once.
 """
 
 from __future__ import annotations
@@ -183,7 +187,7 @@ def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callab
         if it == settings.reopt_rounds:
             stopped = f"reopt_rounds ({settings.reopt_rounds}) done"
             break
-        if remaining() < limit() + last_timing:  # the next solve and its timing would pass the budget
+        if remaining() < base_limit + last_timing:  # the next solve and its timing would pass the budget
             stopped = f"budget_s ({settings.budget_s:g} s): no time left for another routing solve"
             break
         penalised.update(new)
@@ -191,7 +195,7 @@ def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callab
         r = route(costed(), settings, same_boom=penalised, apart=sorted(apart), initial=best.routes,
                   time_limit_s=limit())
         rounds += 1
-    if best is None:  # no seed and no routing (cannot happen: a routing runs unless a seed was good enough)
+    if best is None:  # cannot happen: without a candidate the routing always runs
         raise RuntimeError("round: no candidate timeline")
     planning_s = time.perf_counter() - t0
     kept = seed is not None and best.routes == seed_routes(inst, seed, settings.sweep_band_m)
