@@ -8,7 +8,7 @@ the rig's mounting code); boom-boom distances from :class:`BoomPair` directly, s
 clearances from each boom's :class:`SafetyModel`; joint speeds from the rows against the motion file.
 Prints one JSON object (the smallest boom-boom distance, each boom's smallest self and tunnel
 clearance, the largest joint speed over its limit, the violations) and exits 1 when any of them
-breaks: boom-boom < d_boom, self or tunnel < 0, a joint faster than its speed.
+breaks: boom-boom < d_boom, self or tunnel < 0, a joint faster than its speed; 2 on a missing file or a bad --dt.
 """
 
 from __future__ import annotations
@@ -89,6 +89,12 @@ def main(argv=None) -> int:
     ap.add_argument("--rig", default="twin")
     ap.add_argument("--dt", type=float, default=0.005)
     args = ap.parse_args(argv)
+    if not args.trajectory.is_file():
+        print(f"check_round: {args.trajectory}: no such trajectory file", file=sys.stderr)
+        return 2
+    if args.dt <= 0:
+        print(f"check_round: --dt {args.dt}: must be > 0", file=sys.stderr)
+        return 2
     out = check(args.trajectory, args.rig, args.dt)
     print(json.dumps(out, indent=1))
     return 1 if out["violations"] else 0
