@@ -21,8 +21,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from pipeline.assembly.build import build_safety
 from pipeline.core.config import as_dict, project_path
-from pipeline.core.device import configure_process
-from pipeline.core.settings import RuntimeSettings, parse
+from pipeline.core.settings import parse
+from pipeline.core.stage import run_stage
 from pipeline.data.holes import joint_box
 from pipeline.evaluation.benchmarking import (
     COLUMNS,
@@ -64,8 +64,7 @@ def run(cfg: DictConfig) -> pd.DataFrame:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    configure_process(RuntimeSettings.from_config(cfg).threads)
-    run(cfg)
+    run_stage(cfg, run, threads="threads")
 
 
 if __name__ == "__main__":

@@ -14,9 +14,9 @@ from omegaconf import DictConfig, OmegaConf
 
 from pipeline.calibration.study import CalibrationSettings, face_holes, fit_file, residual_errors, run_study
 from pipeline.core.config import project_path
-from pipeline.core.device import configure_process
 from pipeline.core.errors import InputError
-from pipeline.core.settings import RuntimeSettings, parse
+from pipeline.core.settings import parse
+from pipeline.core.stage import run_stage
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
 __all__ = ["face_holes", "residual_errors", "run"]  # the study's helpers, as tests import them from here
@@ -37,8 +37,7 @@ def run(cfg: DictConfig):
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    configure_process(RuntimeSettings.from_config(cfg).calibrate_threads)  # one thread: see conf/runtime/
-    run(cfg)
+    run_stage(cfg, run, threads="calibrate_threads")  # one thread: see conf/runtime/
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ from omegaconf import DictConfig
 
 from pipeline.assembly.build import build_safety
 from pipeline.core.config import project_path
+from pipeline.core.stage import run_stage
 from pipeline.plans.demo_face import write_demo_plan
 
 log = logging.getLogger(__name__)
@@ -31,7 +32,7 @@ def run(cfg: DictConfig) -> list[Path]:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    run(cfg)
+    run_stage(cfg, run, threads=None)  # torch's default threads
 
 
 if __name__ == "__main__":

@@ -18,9 +18,9 @@ from omegaconf import DictConfig
 
 from pipeline.assembly.build import build_safety, hole_sampling
 from pipeline.core.config import CONF_DIR
-from pipeline.core.device import configure_process
 from pipeline.core.io import write_text
-from pipeline.core.settings import RuntimeSettings, parse, rule
+from pipeline.core.settings import parse, rule
+from pipeline.core.stage import run_stage
 from pipeline.learning.supervised_set import derive_working_box
 from pipeline.solvers.labels import local_search
 
@@ -56,8 +56,7 @@ def run(cfg: DictConfig) -> dict:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    configure_process(RuntimeSettings.from_config(cfg).threads)
-    run(cfg)
+    run_stage(cfg, run, threads="threads")
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ from pipeline.assembly.build import build_safety
 from pipeline.core.config import project_path
 from pipeline.core.io import save_figure, write_csv, write_json, write_parquet
 from pipeline.core.settings import parse, rule
+from pipeline.core.stage import run_stage
 from pipeline.data.hole_sets import read_test_groups
 from pipeline.evaluation.metrics import MethodEvaluation, collision_table, evaluate_network, summary_frame
 from pipeline.evaluation.plots import face_projection, method_comparison, training_curves
@@ -89,7 +90,7 @@ def write_results(results: dict[str, MethodEvaluation], groups, safety, out: Pat
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    run(cfg)
+    run_stage(cfg, run, threads=None)  # torch's default threads
 
 
 if __name__ == "__main__":

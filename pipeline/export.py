@@ -23,6 +23,7 @@ from omegaconf import DictConfig, OmegaConf
 from pipeline.assembly.build import load_boom
 from pipeline.core.config import project_path
 from pipeline.core.settings import parse
+from pipeline.core.stage import run_stage
 from pipeline.deploy.package import ExportSettings, check_poses, export_method
 from pipeline.learning.network_source import load_network
 from pipeline.tracking.runs import TrackingSettings, stage_run
@@ -59,7 +60,7 @@ def run(cfg: DictConfig) -> dict[str, dict]:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    run(cfg)
+    run_stage(cfg, run, threads=None)  # torch's default threads
 
 
 if __name__ == "__main__":

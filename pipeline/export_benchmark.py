@@ -22,6 +22,7 @@ from omegaconf import DictConfig, OmegaConf
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.io import write_csv, write_text
 from pipeline.core.settings import parse
+from pipeline.core.stage import run_stage
 from pipeline.deploy.latency import COLUMNS, latency_markdown, machine, measure
 from pipeline.deploy.package import ExportSettings
 from pipeline.tracking.runs import TrackingSettings, stage_run
@@ -58,7 +59,7 @@ def run(cfg: DictConfig) -> pd.DataFrame:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    run(cfg)
+    run_stage(cfg, run, threads=None)  # torch's default threads
 
 
 if __name__ == "__main__":

@@ -23,6 +23,7 @@ from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import save_figure
 from pipeline.core.settings import parse, rule
+from pipeline.core.stage import run_stage
 from pipeline.data.hole_sets import SupervisedSet, build_hole_sets, write_hole_sets
 from pipeline.data.holes import joint_box
 from pipeline.data.tables import POSE_COLUMNS
@@ -94,7 +95,7 @@ def run(cfg: DictConfig) -> dict:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    run(cfg)
+    run_stage(cfg, run, threads=None)  # torch's default threads
 
 
 if __name__ == "__main__":

@@ -21,10 +21,10 @@ from omegaconf import DictConfig
 
 from pipeline.assembly.rig import build_rig
 from pipeline.core.config import as_dict, project_path
-from pipeline.core.device import configure_process
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import write_csv, write_json
-from pipeline.core.settings import RuntimeSettings, coerce, parse
+from pipeline.core.settings import coerce, parse
+from pipeline.core.stage import run_stage
 from pipeline.data.holes import joint_box
 from pipeline.learning.network_source import load_network
 from pipeline.motion.benchmark import MoveBenchmarkSettings, distance_rate, move_benchmark, redundancy
@@ -82,8 +82,7 @@ def run(cfg: DictConfig) -> dict:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    configure_process(RuntimeSettings.from_config(cfg).threads)
-    run(cfg)
+    run_stage(cfg, run, threads="threads")
 
 
 if __name__ == "__main__":

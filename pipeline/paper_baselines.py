@@ -15,10 +15,9 @@ from omegaconf import DictConfig, OmegaConf
 
 from pipeline.assembly.build import load_boom
 from pipeline.core.config import as_dict, project_path
-from pipeline.core.device import configure_process
 from pipeline.core.errors import InputError
 from pipeline.core.io import write_csv, write_text
-from pipeline.core.settings import RuntimeSettings
+from pipeline.core.stage import run_stage
 from pipeline.data.hole_sets import read_hole_poses
 from pipeline.data.holes import joint_box
 from pipeline.data.tables import COLLAR_COLUMNS, TOE_COLUMNS, collar_toe_poses, read_table
@@ -67,8 +66,7 @@ def blast_holes(path, depth: float) -> torch.Tensor:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    configure_process(RuntimeSettings.from_config(cfg).threads)
-    run(cfg)
+    run_stage(cfg, run, threads="threads")
 
 
 if __name__ == "__main__":

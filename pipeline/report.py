@@ -17,6 +17,7 @@ from omegaconf import DictConfig
 from pipeline.core.config import project_path
 from pipeline.core.errors import InputError
 from pipeline.core.io import copy_file, write_text
+from pipeline.core.stage import run_stage
 from pipeline.evaluation.markdown import markdown_rows
 from pipeline.evaluation.paper_numbers import PAPER000, PAPER000_CUIKM_GAIN, PAPER000_TABLE3
 from pipeline.geometry.collision import SAFETY_KINDS
@@ -93,7 +94,7 @@ def run(cfg: DictConfig) -> str:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    run(cfg)
+    run_stage(cfg, run, threads=None)  # torch's default threads
 
 
 if __name__ == "__main__":

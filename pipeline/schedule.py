@@ -23,9 +23,7 @@ ends KILLED (:func:`pipeline.tracking.runs.stage_run`).
 from __future__ import annotations
 
 import logging
-import tempfile
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 
 import hydra
 import numpy as np
@@ -34,10 +32,10 @@ from omegaconf import DictConfig
 
 from pipeline.assembly.rig import build_rig
 from pipeline.core.config import as_dict, project_path
-from pipeline.core.device import configure_process
 from pipeline.core.errors import ConfigError
-from pipeline.core.io import publish, require_writable, save_figure, write_csv, write_json, write_text
+from pipeline.core.io import require_writable, save_figure, write_csv, write_text
 from pipeline.core.settings import RuntimeSettings, coerce, parse, rule
+from pipeline.core.stage import run_stage
 from pipeline.data.holes import joint_box
 from pipeline.learning.network_source import load_network
 from pipeline.motion.timing import load_motion
@@ -45,7 +43,8 @@ from pipeline.plans.model import COLLAR
 from pipeline.plans.reach import reach_table, rig_solvers
 from pipeline.plans.read import read_plan
 from pipeline.plans.solutions import spreadsheet_safe
-from pipeline.round.instance import parse_round
+from pipeline.round.instance import parse_round, precedence_indices
+from pipeline.round.output import round_paths, write_round_set
 from pipeline.round.schedule import schedule_round
 from pipeline.solvers.base import NetworkSolver
 from pipeline.solvers.hybrid import HybridSettings
@@ -69,20 +68,6 @@ class ScheduleSettings:
     bench_faces: list = field(default_factory=lambda: ["demo", 50, 100, 150])
     bench_rigs: list = field(default_factory=lambda: ["single", "twin", "trio"])
     bench_seed: int = 0
-
-
-def outputs(plan_path: Path, out) -> dict[str, Path]:
-    """Where the set goes: beside the plan, or into ``out`` (a folder, or the round CSV's path)."""
-    stem = plan_path.stem
-    if out:
-        o = project_path(out)
-        folder, stem = (o.parent, o.name.removesuffix("_round.csv").removesuffix(".csv")) if o.suffix == ".csv" \
-            else (o, stem)
-    else:
-        folder = plan_path.parent
-    names = {"round": "_round.csv", "trajectory": "_trajectory.csv", "json": "_round.json",
-             "face": "_round_face.png", "gantt": "_round_gantt.png", "replay": "_round_replay.html"}
-    return {k: folder / f"{stem}{v}" for k, v in names.items()}
 
 
 def _progress(enabled: bool):
@@ -110,13 +95,15 @@ def run(cfg: DictConfig) -> dict:
     tracking = TrackingSettings.from_config(cfg.tracking)
     runtime = RuntimeSettings.from_config(cfg)
     plan_path = project_path(coerce(cfg.plan, "str", "plan"))
+    # Before any work: never an input, never a folder in the way, never a name that makes a folder.
+    files = round_paths(plan_path, project_path(cfg.out) if cfg.get("out") else None)
+    require_writable(files.folder, "out (its folder)")
     rig = build_rig(cfg.rig, cfg.tunnel, cfg.safety)
     iredes = as_dict(cfg.solve.iredes) if plan_path.suffix.lower() == ".xml" else {}
     plan = read_plan(plan_path, **iredes)
     if len(plan) == 0:
         raise ConfigError(f"plan = {plan_path}: no readable hole")
-    files = outputs(plan_path, cfg.get("out"))
-    folder = require_writable(files["round"].parent, "out (its folder)")
+    precedence_indices(round_settings.precedence, plan.holes["hole_id"].astype(str).tolist())  # before solving
     for line in plan.report():
         log.warning("skipped: %s", line)
     source = None
@@ -150,38 +137,42 @@ def run(cfg: DictConfig) -> dict:
         summary = {"plan": str(plan_path), **res.summary, "reach_solve_s": reach.summary()["solve_s"],
                    "invalid_rows": len({p.row for p in plan.problems})}
         collars = plan.holes[COLLAR].to_numpy(float)
-        with tempfile.TemporaryDirectory(prefix=f".{files['round'].stem}.", dir=folder) as tmp:
-            staged = {Path(tmp) / p.name: p for p in files.values()}
-            tmp_of = {k: Path(tmp) / p.name for k, p in files.items()}
-            write_csv(spreadsheet_safe(table), tmp_of["round"])
-            write_csv(res.trajectory, tmp_of["trajectory"])
-            write_json(summary, tmp_of["json"])
-            if settings.figures:
-                from pipeline.round.figures import face_figure, gantt_figure
+        writers = {"round": lambda p: write_csv(spreadsheet_safe(table), p),
+                   "trajectory": lambda p: write_csv(res.trajectory, p)}
+        if settings.figures:
+            from pipeline.round.figures import face_figure, gantt_figure
 
-                title = (f"rig {rig.name}: makespan {summary['makespan_s']:.0f} s "
-                         f"(bound {summary['lower_bound_s']:.0f} s)")
-                face = face_figure(res.round, collars, rig, title)
-                gantt = gantt_figure(res.trajectory, rig.names, title)
-                save_figure(face, tmp_of["face"])
-                save_figure(gantt, tmp_of["gantt"])
-                mlrun.log_figure(face, "round_face.png")
-                mlrun.log_figure(gantt, "round_gantt.png")
-            if settings.replay:
-                from pipeline.round.figures import replay_html
+            ratio = summary["makespan_over_bound"]
+            title = (f"rig {rig.name}: makespan {summary['makespan_s']:.0f} s "
+                     f"(bound {summary['lower_bound_s']:.0f} s)" if ratio is not None else
+                     f"rig {rig.name}: no hole drillable")
+            face = face_figure(res.round, collars, rig, title)
+            gantt = gantt_figure(res.trajectory, rig.names, title)
+            writers["face"] = lambda p: save_figure(face, p)
+            writers["gantt"] = lambda p: save_figure(gantt, p)
+            mlrun.log_figure(face, "round_face.png")
+            mlrun.log_figure(gantt, "round_gantt.png")
+        if settings.replay:
+            from pipeline.round.figures import replay_html
 
-                write_text(replay_html(res.trajectory, rig, collars, settings.replay_frames), tmp_of["replay"])
-            staged = {src: dst for src, dst in staged.items() if src.exists()}
-            mlrun.log_metrics(metrics(summary))
-            mlrun.log_table(table, "round.json")
-            mlrun.log_table(res.trajectory, "trajectory.json")
-            for src in staged:
-                if src.suffix in (".json", ".html"):
-                    mlrun.log_artifact(src)
-            publish(staged, folder / f".{files['round'].stem}.lock")
+            writers["replay"] = lambda p: write_text(replay_html(res.trajectory, rig, collars,
+                                                                 settings.replay_frames), p)
+        mlrun.log_metrics(metrics(summary))
+        mlrun.log_table(table, "round.json")
+        mlrun.log_table(res.trajectory, "trajectory.json")
+
+        def log_staged(staged):
+            for kind in ("json", "replay"):
+                if kind in staged:
+                    mlrun.log_artifact(staged[kind])
+
+        summary = write_round_set(files, summary, writers, log_staged)
     log.info("round of rig %s: %d holes, makespan %.1f s (lower bound %.1f s, naive %s, nearest %s), planned in "
              "%.1f s -> %s", rig.name, summary["holes_drilled"], summary["makespan_s"], summary["lower_bound_s"],
              summary["naive_makespan_s"], summary["nearest_makespan_s"], summary["planning_s"], files["round"])
+    if summary["status"] != "complete":
+        log.warning("round of rig %s: %s (%d of %d holes drilled; the round table says why)", rig.name,
+                    summary["status"], summary["holes_drilled"], len(plan))
     return summary
 
 
@@ -255,8 +246,7 @@ def with_invalid_rows(table: pd.DataFrame, plan) -> pd.DataFrame:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    configure_process(RuntimeSettings.from_config(cfg).threads)
-    run(cfg)
+    run_stage(cfg, run, threads="threads")
 
 
 if __name__ == "__main__":

@@ -36,10 +36,10 @@ from omegaconf import DictConfig, OmegaConf
 from pipeline.assembly.build import build_safety, load_boom
 from pipeline.assembly.rig import build_rig
 from pipeline.core.config import as_dict, project_path
-from pipeline.core.device import configure_process
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import require_writable
-from pipeline.core.settings import RuntimeSettings, coerce, parse, rule
+from pipeline.core.settings import coerce, parse, rule
+from pipeline.core.stage import run_stage
 from pipeline.data.holes import joint_box
 from pipeline.evaluation.plots import solution_figure
 from pipeline.learning.network_source import load_network
@@ -218,8 +218,7 @@ def boom_views(table, q: torch.Tensor, safety, limit: int) -> list[dict]:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    configure_process(RuntimeSettings.from_config(cfg).threads)
-    run(cfg)
+    run_stage(cfg, run, threads="threads")
 
 
 if __name__ == "__main__":

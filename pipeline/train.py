@@ -31,9 +31,10 @@ from omegaconf import DictConfig, OmegaConf
 
 from pipeline.assembly.build import build_safety, hole_sampling
 from pipeline.core.config import as_dict, project_path
-from pipeline.core.device import configure_process, resolve_device
+from pipeline.core.device import resolve_device
 from pipeline.core.io import publish, require_writable, write_csv, write_json
 from pipeline.core.settings import RuntimeSettings
+from pipeline.core.stage import run_stage
 from pipeline.data.tables import POSE_COLUMNS
 from pipeline.evaluation.metrics import solution_table, summarize
 from pipeline.geometry.collision import SafetyDistances
@@ -177,8 +178,7 @@ def lock_path(models_dir: Path, name: str) -> Path:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> float:
-    configure_process(RuntimeSettings.from_config(cfg).train_threads)
-    return run(cfg)["val_hole_mm"]
+    return run_stage(cfg, run, threads="train_threads")["val_hole_mm"]
 
 
 if __name__ == "__main__":

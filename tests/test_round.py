@@ -147,10 +147,30 @@ def test_lower_bound_by_hand():
     inst = Instance(("A",), ("a", "b"), np.ones((1, 2), bool), phases, move)
     single = max(5 + 31 + 5, 2 + 42 + 2)  # park -> hole -> park
     entries = 3 + 2  # into a: from b (3 < 5 from park); into b: from park (2 < 3 from a)
-    assert lower_bound(inst) == pytest.approx(max(single, (31 + 42 + entries) / 1))
+    # one boom drills both, so it also returns home at the end: + its shortest return (2, from b)
+    assert lower_bound(inst) == pytest.approx(max(single, (31 + 42 + entries) / 1 + 2))
+    assert lower_bound(inst) <= 2 + 42 + 3 + 31 + 5  # the best round of the two orders, by hand (83 s)
     two = Instance(("A", "B"), ("a", "b"), np.ones((2, 2), bool), phases, np.concatenate([move, move]))
     assert lower_bound(two) == pytest.approx(max(single, (31 + 42 + entries) / 2))
     assert lower_bound(two) == 46
+
+
+def test_lower_bound_counts_the_holes_only_one_boom_can_drill():
+    """Two booms, but only A can drill either hole: A's own work is the bound, not half of it. By
+    hand: A enters a from b (3) and b from park (2), drills 31 + 42 s, returns home from b (2) at the
+    least; every round of A alone (park -> b -> a -> park = 2 + 42 + 3 + 31 + 5 = 83 s, or the other
+    way, 87 s) is at least that."""
+    move = np.array([[[0, 3, 5], [3, 0, 2], [5, 2, 0]]], float)
+    phases = np.array([[10, 20, 1], [10, 30, 2]], float)
+    reach = np.array([[True, True], [False, False]])
+    two = Instance(("A", "B"), ("a", "b"), reach, phases, np.concatenate([move, move]))
+    alone = 31 + 42 + (3 + 2) + 2
+    assert lower_bound(two) == pytest.approx(alone)
+    best = min(2 + 42 + 3 + 31 + 5, 5 + 31 + 3 + 42 + 2)  # both orders of A's round, by hand
+    assert lower_bound(two) <= best
+    # with both booms able to drill both holes, the shared bound is half as large
+    assert lower_bound(Instance(("A", "B"), ("a", "b"), np.ones((2, 2), bool), phases,
+                                np.concatenate([move, move]))) < alone
 
 
 def test_baselines_by_side_and_nearest():

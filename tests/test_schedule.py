@@ -22,6 +22,7 @@ import torch
 
 from pipeline import demo_face, schedule
 from pipeline.core.config import PROJECT_ROOT
+from pipeline.core.errors import ConfigError, InputError
 from pipeline.motion.timing import load_motion
 
 D = torch.float64
@@ -139,35 +140,76 @@ def test_unreachable_hole_keeps_its_row_and_single_hole_works(face_plan, make_cf
     assert s["makespan_s"] >= s["lower_bound_s"] > 0
 
 
+def _ignore_sigint():
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # as a shell's background job (`&`) inherits it
+
+
 @pytest.mark.slow
-def test_sigterm_leaves_no_half_written_output_and_no_running_run(face_plan):
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT-in-background"])
+def test_a_signal_leaves_no_half_written_output_and_no_running_run(face_plan, signum):
+    """SIGTERM, and SIGINT sent to a stage started in the background (SIGINT inherited ignored: a
+    tester's ``kill -INT`` once let the stage plan on, replace the previous set and exit 0)."""
     tmp, holes = face_plan
-    plan = tmp / "term.csv"
+    name = f"term{int(signum)}"
+    plan = tmp / f"{name}.csv"
     holes.to_csv(plan, index=False)
+    (tmp / f"{name}_round.csv").write_text("the previous set\n")
     cmd = [sys.executable, "-m", "pipeline.schedule", "experiment=tiny", f"paths.data={tmp}/data",
-           f"tracking.uri=sqlite:///{tmp}/term.db", f"tracking.artifact_root={tmp}/term_art", *FAST,
+           f"tracking.uri=sqlite:///{tmp}/{name}.db", f"tracking.artifact_root={tmp}/{name}_art", *FAST,
            "round.time_limit_s=30", f"plan={plan}", f"hydra.run.dir={tmp}/hydra"]
-    proc = subprocess.Popen(cmd, cwd=PROJECT_ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    proc = subprocess.Popen(cmd, cwd=PROJECT_ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            preexec_fn=_ignore_sigint)
     deadline = time.monotonic() + 180
     while time.monotonic() < deadline:  # wait for the run, then a little into the planning
         assert proc.poll() is None, proc.communicate()
         try:
-            with sqlite3.connect(f"file:{tmp}/term.db?mode=ro", uri=True) as db:
+            with sqlite3.connect(f"file:{tmp}/{name}.db?mode=ro", uri=True) as db:
                 if db.execute("select count(*) from runs where status = 'RUNNING'").fetchone()[0]:
                     break
         except sqlite3.OperationalError:
             pass
         time.sleep(0.5)
     time.sleep(3.0)
-    proc.send_signal(signal.SIGTERM)
+    proc.send_signal(signum)
     out, _ = proc.communicate(timeout=120)
-    assert proc.returncode == 128 + signal.SIGTERM, out
-    with sqlite3.connect(f"{tmp}/term.db") as db:
+    assert proc.returncode == 128 + signum, out
+    with sqlite3.connect(f"{tmp}/{name}.db") as db:
         status = [s for (s,) in db.execute("select status from runs")]
     assert status == ["KILLED"]
-    left = [p.name for p in Path(tmp).iterdir() if p.name.startswith((".term_round.", "term_round", "term_traj"))
+    assert (tmp / f"{name}_round.csv").read_text() == "the previous set\n"
+    left = [p.name for p in Path(tmp).iterdir() if p.name.startswith((f".{name}_round.", f"{name}_traj"))
             and not p.name.endswith(".lock")]
     assert not left, left
+
+
+def test_out_is_checked_against_the_plan_before_any_work(face_plan, make_cfg):
+    tmp, holes = face_plan
+    plan = tmp / "P_trajectory.csv"
+    holes.iloc[:3].to_csv(plan, index=False)
+    before = plan.read_bytes()
+    started = time.perf_counter()
+    with pytest.raises(InputError, match="is the input .* itself"):
+        schedule.run(make_cfg(tmp, *FAST, f"plan={plan}", f"out={tmp / 'P.csv'}"))
+    assert plan.read_bytes() == before
+    assert time.perf_counter() - started < 5  # refused before the reach table (which takes far longer)
+    with pytest.raises(ConfigError, match=r"round.precedence\[0\].*cannot come before itself"):
+        h = holes.hole_id[0]
+        schedule.run(make_cfg(tmp, *FAST, f"plan={plan}", f"round.precedence=[[{h},{h}]]"))
+    with pytest.raises(ConfigError, match=r"round.precedence\[0\].*no hole 'nope'"):
+        schedule.run(make_cfg(tmp, *FAST, f"plan={plan}", f"round.precedence=[[{holes.hole_id[0]},nope]]"))
+
+
+def test_a_plan_no_boom_can_drill_gets_its_table_and_a_clear_status(face_plan, make_cfg):
+    tmp, _ = face_plan
+    plan = tmp / "far.csv"
+    pd.DataFrame([["FAR", 14.0, 0.0, 2.0, 17.5, 0.0, 2.0], ["FAR2", 15.0, 0.0, 2.0, 18.5, 0.0, 2.0]],
+                 columns=COLS).to_csv(plan, index=False)
+    s = schedule.run(make_cfg(tmp, *FAST, f"plan={plan}", "schedule.replay=false"))
+    assert s["status"] == "none drillable" and s["holes_drilled"] == 0 and s["makespan_over_bound"] is None
+    on_disk = json.loads((tmp / "far_round.json").read_text())
+    assert on_disk["status"] == "none drillable"
+    r = pd.read_csv(tmp / "far_round.csv", keep_default_na=False)
+    assert list(r["status"]) == ["unreachable", "unreachable"] and all("no boom can drill" in x for x in r["reason"])
 
 
 @pytest.mark.skipif(shutil.which("chromium") is None and shutil.which("chromium-browser") is None,

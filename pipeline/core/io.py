@@ -96,6 +96,17 @@ def file_md5(path: str | Path) -> str:
     return h.hexdigest()
 
 
+def same_file(a: Path, b: Path) -> bool:
+    """Whether two paths name one file (after resolving links, or as hard links of one file)."""
+    a, b = Path(a), Path(b)
+    if a.resolve() == b.resolve():
+        return True
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)  # hard links
+    except OSError:
+        return False
+
+
 def publish(files: dict[Path, Path], lock: Path, remove: Iterable[Path] = ()) -> None:
     """Move finished files onto their destinations, each with one atomic rename, all under one
     file lock: a set written together (a checkpoint, its history, its summary) is replaced together,
@@ -104,6 +115,9 @@ def publish(files: dict[Path, Path], lock: Path, remove: Iterable[Path] = ()) ->
     from filelock import FileLock
 
     lock.parent.mkdir(parents=True, exist_ok=True)
+    in_the_way = [str(dst) for dst in files.values() if Path(dst).is_dir() and not Path(dst).is_symlink()]
+    if in_the_way:  # checked before the first rename: a set is published whole or not at all
+        raise InputError(f"cannot publish: {', '.join(in_the_way)} is a folder; the set needs that name")
     with FileLock(str(lock), timeout=600):
         for src, dst in files.items():
             Path(dst).parent.mkdir(parents=True, exist_ok=True)

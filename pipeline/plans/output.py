@@ -11,7 +11,6 @@ reader can check the three belong together. Staging folders of killed runs are r
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,7 +18,7 @@ from pathlib import Path
 import pandas as pd
 
 from pipeline.core.errors import InputError
-from pipeline.core.io import file_md5, publish, save_figure, staged_folder, write_csv, write_json
+from pipeline.core.io import file_md5, publish, same_file, save_figure, staged_folder, write_csv, write_json
 from pipeline.plans.solutions import spreadsheet_safe
 
 
@@ -35,15 +34,6 @@ class SolutionPaths:
 
     def all(self) -> tuple[Path, Path, Path]:
         return self.csv, self.json, self.png
-
-
-def _same_file(a: Path, b: Path) -> bool:
-    if a.resolve() == b.resolve():
-        return True
-    try:
-        return a.exists() and b.exists() and os.path.samefile(a, b)  # hard links
-    except OSError:
-        return False
 
 
 def solution_paths(plan_path: str | Path, out: str | Path | None) -> SolutionPaths:
@@ -62,7 +52,7 @@ def solution_paths(plan_path: str | Path, out: str | Path | None) -> SolutionPat
                          "with them or hide the table")
     paths = SolutionPaths(out, out.with_suffix(".json"), out.with_suffix(".png"))
     for p in paths.all():
-        if _same_file(p, plan_path):
+        if same_file(p, plan_path):
             raise InputError(f"out = {out}: {p} is the drill plan {plan_path} itself; refusing to overwrite "
                              "an input (choose another out=)")
         if p.is_dir():

@@ -6,7 +6,11 @@
   round is shorter than the longest of these;
 - every hole is entered once, by one of the booms that can drill it, from park or from another hole
   that boom can drill; B booms share the drilling and those entries, so one of them works at least
-  the average.
+  the average;
+- a hole only boom b can drill is b's work whatever the allocation: b drills all of its own holes,
+  enters each (the shortest entry by b), and returns to park from some hole it can drill (the
+  shortest such return), so no round is shorter than that sum for any boom. Without it a plan only
+  one boom of two can drill reads half its true bound.
 
 Holes no boom can drill are not part of the round and are left out.
 """
@@ -30,4 +34,8 @@ def lower_bound(inst: Instance) -> float:
     into = mv[:, :, :H].min(axis=1).min(axis=0)  # shortest entry of each hole, any boom that can drill it
     single = np.where(inst.reach, inst.move_s[:, H, :H] + drill + inst.move_s[:, :H, H], np.inf).min(axis=0)
     share = (drill[keep].sum() + into[keep].sum()) / inst.n_booms
-    return float(max(single[keep].max(), share))
+    own = inst.reach & (inst.reach.sum(axis=0) == 1)  # (B, H): holes only boom b can drill
+    into_by = mv[:, :, :H].min(axis=1)  # (B, H): boom b's shortest entry of each hole
+    home = np.where(inst.reach, inst.move_s[:, :H, H], np.inf).min(axis=1)  # (B,): b's shortest return
+    alone = np.where(own, drill + into_by, 0.0).sum(axis=1) + np.where(own.any(axis=1), home, 0.0)
+    return float(max(single[keep].max(), share, alone.max()))

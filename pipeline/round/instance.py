@@ -54,6 +54,8 @@ def parse_round(node: Mapping, source: str = "conf/round") -> RoundSettings:
     for k, pair in enumerate(s.precedence):
         if len(pair) != 2:
             raise ConfigError(f"{source}.precedence[{k}] = {pair!r}: expected [hole_id_before, hole_id_after]")
+        if str(pair[0]) == str(pair[1]):
+            raise ConfigError(f"{source}.precedence[{k}] = {pair!r}: hole '{pair[0]}' cannot come before itself")
     return s
 
 
@@ -134,5 +136,7 @@ def precedence_indices(pairs: Sequence[Sequence[str]], hole_ids: Sequence[str], 
         for h in (a, b):
             if h not in index:
                 raise ConfigError(f"{source}[{k}] = {[a, b]!r}: no hole '{h}' in the plan")
+        if index[a] == index[b]:
+            raise ConfigError(f"{source}[{k}] = {[a, b]!r}: hole '{a}' cannot come before itself")
         out.append((index[a], index[b]))
     return tuple(out)

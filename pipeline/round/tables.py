@@ -71,6 +71,15 @@ def trajectory_table(inst: Instance, tl: Timeline, oracle, joint_names) -> pd.Da
     return pd.concat(frames, ignore_index=True)
 
 
+def round_status(inst: Instance, tl: Timeline) -> str:
+    """``complete``: every hole of the plan drilled; ``partial``: some no boom can drill (their rows say
+    why); ``none drillable``: no boom can drill any hole, so there is no round (every boom stays at park)."""
+    drilled = sum(len(r) for r in tl.routes)
+    if drilled == 0:
+        return "none drillable"
+    return "complete" if drilled == inst.n_holes else "partial"
+
+
 def summary(inst: Instance, tl: Timeline, lower_bound_s: float, naive: Timeline | None, nearest: Timeline | None,
             bases, d_boom: float, move_kinds: dict | None = None, **extra) -> dict:
     booms = {}
@@ -82,7 +91,9 @@ def summary(inst: Instance, tl: Timeline, lower_bound_s: float, naive: Timeline 
     out = {
         "makespan_s": tl.makespan,
         "lower_bound_s": lower_bound_s,
-        "makespan_over_bound": tl.makespan / lower_bound_s if lower_bound_s > 0 else float("nan"),
+        # None when no hole is drillable (no round: 0 / 0); JSON has no NaN
+        "makespan_over_bound": tl.makespan / lower_bound_s if lower_bound_s > 0 else None,
+        "status": round_status(inst, tl),
         "naive_makespan_s": naive.makespan if naive is not None else None,
         "nearest_makespan_s": nearest.makespan if nearest is not None else None,
         # None for one boom (no pair): JSON has no infinity
