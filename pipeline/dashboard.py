@@ -14,24 +14,32 @@ import hydra
 from omegaconf import DictConfig
 
 from pipeline.core.signals import terminate_as_interrupt
+from pipeline.core.stage import run_stage
 from pipeline.tracking import dashboard
 from pipeline.tracking.runs import TrackingSettings
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
+    run_stage(cfg, serve, threads=None)
+
+
+def serve(cfg: DictConfig) -> None:
+    """Start the UI, print its runs table's URL, serve until Ctrl-C or SIGTERM (while starting too),
+    then stop the UI and its web server (a few seconds) and return without a traceback."""
     settings = TrackingSettings.from_config(cfg.tracking)
-    proc, url = dashboard.start(settings)
-    print(f"MLflow dashboard, experiment {settings.experiment} (its runs table):\n  {url}", flush=True)
-    if proc is None:
-        return
+    proc = None
     try:
         with terminate_as_interrupt():  # Ctrl-C or SIGTERM: the UI (its own process group) goes too
-            proc.wait()
+            proc, url = dashboard.start(settings)
+            print(f"MLflow dashboard, experiment {settings.experiment} (its runs table):\n  {url}", flush=True)
+            if proc is not None:
+                proc.wait()
     except KeyboardInterrupt:
-        pass
+        print("MLflow dashboard: stopping", flush=True)
     finally:
-        dashboard.stop(proc)
+        if proc is not None:
+            dashboard.stop(proc)
 
 
 if __name__ == "__main__":

@@ -92,3 +92,33 @@ def test_dvc_plots_render_offline_with_the_project_template(tmp_path):
     assert '"type": "log"' in spec and "regexp('^.*/|_history[.]csv$', 'g')" in spec
     report = module.check(page)
     assert report == {**report, "plots": 4, "drawn": 4, "cdn_scripts": 0, "ok": True}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("when", ["starting", "serving"])
+def test_ctrl_c_stops_the_dashboard_and_its_ui_without_a_traceback(tmp_path, when):
+    """Ctrl-C while the UI starts or serves: the stage stops the UI's process group and exits 0, with no
+    traceback (it once printed one, and waited 30 s for the UI's web server)."""
+    import os
+    import signal
+    import subprocess
+
+    cmd = [sys.executable, "-m", "pipeline.dashboard", f"tracking.uri=sqlite:///{tmp_path}/d.db",
+           f"tracking.artifact_root={tmp_path}/art", "tracking.ui_port=5397", f"hydra.run.dir={tmp_path}/h"]
+    proc = subprocess.Popen(cmd, cwd=SCRIPT.parents[1], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    seen = []
+    marker = "Security middleware" if when == "starting" else "runs table"
+    while not any(marker in line for line in seen):
+        line = proc.stdout.readline()
+        assert line, "".join(seen)
+        seen.append(line)
+    ui = [int(p) for p in subprocess.run(["pgrep", "-f", "5397"], capture_output=True, text=True).stdout.split()
+          if int(p) != proc.pid]
+    proc.send_signal(signal.SIGINT)
+    out = "".join(seen) + proc.communicate(timeout=60)[0]
+    assert proc.returncode == 0, out
+    assert "Traceback" not in out and "stopping" in out
+    for pid in ui:  # the UI and its web server are gone too
+        with pytest.raises(ProcessLookupError):
+            os.kill(pid, 0)

@@ -27,7 +27,17 @@ def test_linear_problems_match_lstsq():
     # lowers the cost any more, the damping grows past give_up and the row stops before the budget
     out = least_squares(fun, torch.zeros(6, 4, dtype=D), damping=Damping(initial=1e-12, give_up=1.0), max_trials=30)
     expected = torch.linalg.lstsq(A, b.unsqueeze(-1)).solution.squeeze(-1)
-    assert torch.allclose(out.x, expected, atol=1e-12, rtol=0)
+    # What the method guarantees, per problem: the damped first step (J^T J + lam D) dx = -J^T r is off
+    # Gauss-Newton's by lam ||(A^T A)^-1 D|| ||x*|| (Marquardt's D = diag(A^T A)); later steps cannot
+    # remove that (their cost gain is below the cost's rounding); plus the normal equations' rounding,
+    # cond(A)^2 eps ||x*|| (x100 for the sums). A fixed 1e-12 sat at the last bits of one BLAS kernel.
+    AtA = A.transpose(1, 2) @ A
+    Dm = torch.diag_embed(torch.diagonal(AtA, dim1=1, dim2=2))
+    size = expected.norm(dim=1)
+    bias = 1e-12 * torch.linalg.matrix_norm(torch.linalg.solve(AtA, Dm), ord=2) * size
+    rounding = 100 * torch.linalg.cond(A) ** 2 * torch.finfo(D).eps * size
+    assert ((out.x - expected).norm(dim=1) <= bias + rounding).all()
+    assert (bias + rounding < 1e-11).all()  # still a test of a near-exact answer
     assert (out.steps >= 1).all() and (out.trials < 30).all()
 
 

@@ -62,12 +62,16 @@ def start(settings: TrackingSettings) -> tuple[subprocess.Popen | None, str]:
     return proc, runs_url(base, exp_id)
 
 
-def stop(proc: subprocess.Popen, timeout_s: float = 30.0) -> None:
-    """End the UI started by :func:`start` and its web server (SIGTERM to its group, SIGKILL if it lingers)."""
+def stop(proc: subprocess.Popen, timeout_s: float = 3.0) -> None:
+    """End the UI started by :func:`start` and its web server (SIGTERM to its group, SIGKILL if it
+    lingers: its web server otherwise waits up to 30 s for open browser connections to close)."""
     if proc.poll() is None:
         os.killpg(proc.pid, signal.SIGTERM)
         try:
             proc.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        except KeyboardInterrupt:  # a second Ctrl-C while stopping: at once
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
