@@ -10,6 +10,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from fk_rounds import boom_joints
 
 from pipeline.core.config import load_group_file
 from pipeline.core.errors import ConfigError
@@ -23,7 +24,6 @@ from pipeline.round.instance import Instance, RoundSettings, drill_phases, parse
 from pipeline.round.kinematic import kinematic_round
 from pipeline.round.plan import baseline, plan_round, reversed_variant
 from pipeline.round.routing import route
-from pipeline.round.synthetic import boom_joints
 from pipeline.round.tables import round_table, summary, trajectory_table
 from pipeline.round.timeline import resolve, scan, simulate
 

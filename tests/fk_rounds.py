@@ -1,0 +1,39 @@
+"""Rounds without a plan or an IK solver: holes made by forward kinematics of joint vectors near each
+boom's face region, for tests and for measuring the planner on real kinematics.
+
+Each boom's holes are where its sampled joints put the drill end (collar) in the rig frame, so each
+hole is drillable by the boom that made it (``reach`` is one boom per hole): allocation is fixed,
+order and timing are what is planned. ``inner`` of a boom's holes put its feed on the inner side of
+the boom (toward the centre line), where the booms meet: those are the conflicts.
+
+Test scaffolding (it lived in the library as ``pipeline.round.synthetic``); the round benchmark
+(``schedule.benchmark=true``) measures the planner on real faces instead.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+D = torch.float64
+
+
+def boom_joints(n: int, seed: int, q7_deg: float, swing_deg=(-12.0, 12.0)) -> torch.Tensor:
+    """``(n, 8)`` jumbo8 joints: swing, lift and both extensions varied; the feed kept near +x (q5, q6
+    undo the lift and the swing); ``q7`` puts the feed on one side of the boom."""
+    g = torch.Generator().manual_seed(seed)
+    u = torch.rand(n, 8, generator=g, dtype=D)
+    q = torch.zeros(n, 8, dtype=D)
+    q[:, 0] = math.radians(swing_deg[0]) + u[:, 0] * math.radians(swing_deg[1] - swing_deg[0])
+    q[:, 1] = math.radians(-10) + u[:, 1] * math.radians(30)
+    q[:, 2] = 3.2 + 0.8 * u[:, 2]
+    q[:, 4], q[:, 5], q[:, 6] = -q[:, 1], -q[:, 0], math.radians(q7_deg)
+    q[:, 7] = 2.0 + 0.8 * u[:, 7]
+    return q
+
+
+# q7 that puts each boom's feed on its outer / inner side, by the sign of its base y (spec twin parks)
+def _q7(base_y: float, inner: bool) -> float:
+    outer = 180.0 if base_y > 0 else 0.0
+    return (outer + 180.0) % 360.0 if inner else outer
