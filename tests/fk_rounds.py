@@ -1,14 +1,6 @@
-"""Rounds without a plan or an IK solver: holes made by forward kinematics of joint vectors near each
-boom's face region, for tests and for measuring the planner on real kinematics.
-
-Each boom's holes are where its sampled joints put the drill end (collar) in the rig frame, so each
-hole is drillable by the boom that made it (``reach`` is one boom per hole): allocation is fixed,
-order and timing are what is planned. ``inner`` of a boom's holes put its feed on the inner side of
-the boom (toward the centre line), where the booms meet: those are the conflicts.
-
-Test scaffolding (it lived in the library as ``pipeline.round.synthetic``); the round benchmark
-(``schedule.benchmark=true``) measures the planner on real faces instead.
-"""
+"""Joint vectors near a jumbo8 boom's face region, for round tests on real kinematics: holes are made
+where these joints put the drill end, so each is drillable by the boom that made it (test scaffolding;
+it lived in the library as ``pipeline.round.synthetic``; the round benchmark measures real faces)."""
 
 from __future__ import annotations
 
