@@ -21,8 +21,8 @@ import pytest
 import torch
 
 from pipeline import demo_face, schedule
-from pipeline.core.config import PROJECT_ROOT
-from pipeline.motion.timing import load_motion
+from pipeline.core.config import PROJECT_ROOT, load_group_file
+from pipeline.motion.timing import motion_from_config
 
 D = torch.float64
 SPEC_DRILL = lambda L: 10.0 + L / 2.5 * 60.0 + L / 1.0  # noqa: E731  spec section 7, by hand
@@ -108,7 +108,7 @@ def test_independent_checker_on_the_trajectory_file(small_round):
 def test_joint_speeds_respected_between_trajectory_rows(small_round, jumbo8):
     tmp, _, _, _ = small_round
     traj = pd.read_csv(tmp / "small_trajectory.csv", keep_default_na=False)
-    limits = load_motion(jumbo8).joints
+    limits = motion_from_config(load_group_file("motion", "jumbo8"), jumbo8).joints
     names = list(jumbo8.joint_names)
     for name in ("L", "R"):
         rows = traj[traj["boom"] == name]

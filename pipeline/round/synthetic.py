@@ -6,8 +6,7 @@ hole is drillable by the boom that made it (``reach`` is one boom per hole): all
 order and timing are what is planned. ``inner`` of a boom's holes put its feed on the inner side of
 the boom (toward the centre line), where the booms meet: those are the conflicts.
 
-``python -m pipeline.round.synthetic`` plans such rounds of 50, 100 and 150 holes on ``twin`` and
-prints makespan, lower bound, baselines and planning time.
+The rig, the motions and the settings come from the caller (nothing here reads ``conf/``).
 """
 
 from __future__ import annotations
@@ -75,35 +74,3 @@ another boom at its park are dropped, so a round may hold a few holes less than 
     idx = np.flatnonzero(keep)
     return kinematic_round(rig, [ids[k] for k in idx], [q[torch.as_tensor(idx)] for q in joints], reach[:, idx],
                            np.full(len(idx), length), motions, collars[idx], settings=settings)
-
-
-def _main() -> None:  # pragma: no cover - a measurement, run by hand
-    import time
-
-    from pipeline.core.build import build_safety, load_boom
-    from pipeline.core.config import load_group_file
-    from pipeline.geometry.rig import load_rig
-    from pipeline.motion.timing import load_motion
-    from pipeline.round.instance import parse_round
-    from pipeline.round.plan import baseline, plan_round
-
-    boom = load_boom("jumbo8")
-    safety = build_safety(boom, load_group_file("tunnel", "horseshoe"), load_group_file("safety", "paper"))
-    rig = load_rig("twin", safety.tunnel, safety.distances, safety.n_points)
-    motion = load_motion(boom)
-    settings = parse_round(load_group_file("round", "default"))
-    print("holes | makespan s | bound s | ratio | naive s | nearest s | waits | fallback | plan s | routing solves")
-    for n in (25, 50, 75):
-        inst, oracle = fk_round(rig, [motion] * len(rig.booms), n, seed=n, settings=settings)
-        t0 = time.perf_counter()
-        plan = plan_round(inst, oracle, settings)
-        dt = time.perf_counter() - t0
-        nv, nr = baseline(inst, oracle, "naive", settings), baseline(inst, oracle, "nearest", settings)
-        tl = plan.timeline
-        print(f"{inst.n_holes} | {tl.makespan:.1f} | {plan.lower_bound_s:.1f} | {tl.makespan / plan.lower_bound_s:.4f}"
-              f" | {nv.makespan:.1f} | {nr.makespan:.1f} | {len(tl.repairs)} | {tl.sequential} | {dt:.1f}"
-              f" | {plan.rounds}", flush=True)
-
-
-if __name__ == "__main__":  # pragma: no cover
-    _main()
