@@ -133,7 +133,9 @@ def composed_rig(cfg, load_model: ModelLoader | None = None) -> Rig:
     and ``boom_models`` (:func:`rig_booms`): what every stage that places a rig calls first."""
     spec = rig_spec(cfg.rig)
     booms = rig_booms(spec, cfg.boom, cfg.get("boom_model"), cfg.get("boom_models"), load_model)
-    return build_rig(spec, cfg.tunnel, cfg.safety, booms)
+    # a rig given by name (rig=trio on params.yaml) brings the drift its file selects, as composing it would
+    tunnel = rig_tunnel(cfg.rig, cfg.tunnel) if isinstance(cfg.rig, str) else cfg.tunnel
+    return build_rig(spec, tunnel, cfg.safety, booms)
 
 
 def load_rig(name: str, tunnel: Horseshoe, distances: SafetyDistances, points_per_capsule: int = 16,
