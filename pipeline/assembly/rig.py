@@ -78,7 +78,9 @@ def rig_booms(spec: RigSpec, boom_cfg=None, boom_model: str | None = None, boom_
     calibrated model of that boom), ``boom_model`` (a calibrated model of one kind: every boom of that
     kind), the composed ``boom`` node (its kind), ``conf/boom/<kind>.yaml``. Every file is read here,
     before any work; a bad one is a :class:`ConfigError` naming the setting."""
-    nominal = nominal_booms(spec, boom_cfg)
+    composed = load_boom(boom_cfg) if boom_cfg is not None else None
+    nominal = nominal_booms(spec, composed)
+    known = {composed.name: composed, **nominal} if composed is not None else nominal  # what a model may sit on
     per_boom = boom_models_setting(boom_models)
     names = [m.name for m in spec.mounts]
     unknown = sorted(set(per_boom) - set(names))
@@ -88,7 +90,7 @@ def rig_booms(spec: RigSpec, boom_cfg=None, boom_model: str | None = None, boom_
         raise ConfigError("boom_model / boom_models: this command cannot load calibrated boom models")
     by_kind: dict[str, Boom] = {}
     if boom_model:
-        model = load_model("boom_model", boom_model, nominal)
+        model = load_model("boom_model", boom_model, known)
         if model.name not in nominal:
             raise ConfigError(f"boom_model = {boom_model!r}: a model of boom {model.name!r}, but rig '{spec.name}' "
                               f"({spec.source}) has booms of kind {sorted(nominal)}")
@@ -96,7 +98,7 @@ def rig_booms(spec: RigSpec, boom_cfg=None, boom_model: str | None = None, boom_
     out = {}
     for m in spec.mounts:
         if m.name in per_boom:
-            model = load_model(f"boom_models.{m.name}", per_boom[m.name], nominal)
+            model = load_model(f"boom_models.{m.name}", per_boom[m.name], known)
             if model.name != m.boom:
                 raise ConfigError(f"boom_models.{m.name} = {per_boom[m.name]!r}: a model of boom {model.name!r}, but "
                                   f"boom '{m.name}' of rig '{spec.name}' is a {m.boom!r} ({spec.source})")
