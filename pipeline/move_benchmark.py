@@ -19,7 +19,8 @@ import time
 import hydra
 from omegaconf import DictConfig
 
-from pipeline.assembly.rig import build_rig
+from pipeline.assembly.rig import composed_rig
+from pipeline.calibration.model_file import model_setting
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import write_csv, write_json
@@ -28,7 +29,7 @@ from pipeline.core.stage import run_stage
 from pipeline.data.holes import joint_box
 from pipeline.learning.network_source import load_network
 from pipeline.motion.benchmark import MoveBenchmarkSettings, distance_rate, move_benchmark, redundancy
-from pipeline.motion.timing import load_motion
+from pipeline.motion.timing import rig_motions
 from pipeline.plans.reach import reach_table, rig_solvers
 from pipeline.plans.read import read_plan
 from pipeline.solvers.base import NetworkSolver
@@ -42,10 +43,11 @@ def run(cfg: DictConfig) -> dict:
     settings = parse(MoveBenchmarkSettings, as_dict(cfg.move_benchmark), "move_benchmark")
     hybrid = parse(HybridSettings, cfg.solver, "solver")
     tracking = TrackingSettings.from_config(cfg.tracking)
-    rig = build_rig(cfg.rig, cfg.tunnel, cfg.safety)
+    rig = composed_rig(cfg, model_setting)  # its booms from boom, boom_model, boom_models: before any work
     if len(rig) < 2:
         raise ConfigError(f"rig = {rig.name!r} ({rig.spec.source}) has one boom; the move benchmark stands another "
                           "boom in the way: use rig=twin or rig=trio")
+    limits = [m.joints for m in rig_motions(as_dict(cfg.motion), rig.booms)]
     plan_path = project_path(coerce(cfg.plan, "str", "plan"))
     plan = read_plan(plan_path)
     network = coerce(cfg.solve.network, "str", "solve.network")
@@ -61,7 +63,6 @@ def run(cfg: DictConfig) -> dict:
         start_box = joint_box(rig.booms[0].boom, None if box is None else as_dict(box))
         solvers = rig_solvers(rig, first_start, hybrid, start_box)
         reach = reach_table(plan, rig, solvers, f"hybrid ({network})")
-        limits = [load_motion(m.boom).joints for m in rig.booms]
         rates = distance_rate(rig, settings)
         saved = redundancy(rig, plan, reach, solvers, limits)
         started = time.perf_counter()

@@ -30,7 +30,9 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig
 
-from pipeline.assembly.rig import build_rig
+from pipeline.assembly.build import build_safety, load_boom
+from pipeline.assembly.rig import build_rig, composed_rig, model_files, rig_booms, rig_spec, rig_tunnel
+from pipeline.calibration.model_file import model_setting
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import require_writable, save_figure, write_csv, write_text
@@ -38,7 +40,7 @@ from pipeline.core.settings import RuntimeSettings, coerce, parse, rule
 from pipeline.core.stage import run_stage
 from pipeline.data.holes import joint_box
 from pipeline.learning.network_source import load_network
-from pipeline.motion.timing import load_motion
+from pipeline.motion.timing import rig_motions
 from pipeline.plans.model import COLLAR
 from pipeline.plans.reach import reach_table, rig_solvers
 from pipeline.plans.read import read_plan
@@ -96,9 +98,11 @@ def run(cfg: DictConfig) -> dict:
     runtime = RuntimeSettings.from_config(cfg)
     plan_path = project_path(coerce(cfg.plan, "str", "plan"))
     # Before any work: never an input, never a folder in the way, never a name that makes a folder.
-    files = round_paths(plan_path, project_path(cfg.out) if cfg.get("out") else None)
+    files = round_paths(plan_path, project_path(cfg.out) if cfg.get("out") else None,
+                        [project_path(f) for f in model_files(cfg)])
     require_writable(files.folder, "out (its folder)")
-    rig = build_rig(cfg.rig, cfg.tunnel, cfg.safety)
+    rig = composed_rig(cfg, model_setting)  # its booms from boom, boom_model, boom_models: before any work
+    motions = rig_motions(as_dict(cfg.motion), rig.booms)
     iredes = as_dict(cfg.solve.iredes) if plan_path.suffix.lower() == ".xml" else {}
     plan = read_plan(plan_path, **iredes)
     if len(plan) == 0:
@@ -128,7 +132,6 @@ def run(cfg: DictConfig) -> dict:
                                   joint_box(rig.booms[0].boom, None if box is None else as_dict(box)))
             reach = reach_table(plan, rig, solvers, "hybrid")
             say(f"reach table: {len(plan)} holes x {len(rig)} booms")
-            motions = [load_motion(m.boom) for m in rig.booms]
             res = schedule_round(rig, plan, reach, motions, round_settings, settings.baselines,
                                  settings.check_moves, say)
         finally:
@@ -181,6 +184,7 @@ def run_benchmark(cfg: DictConfig, settings: ScheduleSettings) -> dict:
     ``paths.data/benchmark/round_benchmark.{csv,md}`` and one MLflow run."""
     from pipeline.round.benchmark import markdown, round_benchmark
 
+    rigs = benchmark_rigs(cfg, settings.bench_rigs)  # every rig, boom model and motion checked before any work
     round_settings = parse_round(as_dict(cfg.round), "round")
     hybrid = parse(HybridSettings, cfg.solver, "solver")
     tracking = TrackingSettings.from_config(cfg.tracking)
@@ -198,9 +202,8 @@ def run_benchmark(cfg: DictConfig, settings: ScheduleSettings) -> dict:
 
     with stage_run(tracking, "schedule-benchmark", {"stage": "schedule", "mode": "benchmark"}) as mlrun:
         mlrun.log_params({"schedule": asdict(settings), "round": as_dict(cfg.round), "solver": as_dict(cfg.solver)})
-        table = round_benchmark(settings.bench_faces, settings.bench_rigs, cfg.tunnel, cfg.safety, hybrid,
-                                round_settings, first_start, settings.bench_seed, lambda m: log.info("%s", m),
-                                folder / "rounds")
+        table = round_benchmark(settings.bench_faces, rigs, hybrid, round_settings, first_start, settings.bench_seed,
+                                lambda m: log.info("%s", m), folder / "rounds")
         write_csv(table, folder / "round_benchmark.csv")
         write_text(markdown(table), folder / "round_benchmark.md")
         mlrun.log_table(table, "round_benchmark.json")
@@ -210,6 +213,26 @@ def run_benchmark(cfg: DictConfig, settings: ScheduleSettings) -> dict:
                                                                     "nearest_s", "planning_s")})
     log.info("round benchmark:\n%s", markdown(table))
     return {"rows": len(table)}
+
+
+def benchmark_rigs(cfg: DictConfig, names) -> list:
+    """The benchmark's rigs by name, each in the drift its file selects, its booms from the composed ``boom``
+    and ``boom_model`` (as :func:`pipeline.assembly.rig.composed_rig`), its motion from ``motion``, and the
+    composed boom's safety model in that drift for designing the faces."""
+    from pipeline.round.benchmark import BenchRig
+
+    if cfg.get("boom_models"):
+        raise ConfigError(f"boom_models = {as_dict(cfg.boom_models)!r}: names the booms of one rig; the round "
+                          f"benchmark plans rigs {list(names)}: use boom_model (every boom of its kind)")
+    out = []
+    for name in names:
+        tunnel = rig_tunnel(coerce(name, "str", "schedule.bench_rigs"), cfg.tunnel)
+        spec = rig_spec(name)
+        booms = rig_booms(spec, cfg.boom, cfg.get("boom_model"), None, model_setting)
+        rig = build_rig(spec, tunnel, cfg.safety, booms)
+        out.append(BenchRig(rig, build_safety(load_boom(cfg.boom), tunnel, cfg.safety),
+                            rig_motions(as_dict(cfg.motion), rig.booms)))
+    return out
 
 
 def metrics(summary: dict) -> dict:

@@ -34,7 +34,8 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from pipeline.assembly.build import build_safety, load_boom
-from pipeline.assembly.rig import build_rig
+from pipeline.assembly.rig import build_rig, composed_rig, rig_spec
+from pipeline.calibration.model_file import model_setting
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import require_writable
@@ -94,9 +95,14 @@ def run(cfg: DictConfig) -> dict:
     out = paths.csv
     require_writable(out.parent, "out (its folder)")
     strict = coerce(cfg.get("strict", False), "bool", "strict")
-    rig = build_rig(cfg.rig, cfg.tunnel, cfg.safety)
-    if len(rig) > 1:  # a reach table; one boom keeps today's path and file format
+    spec = rig_spec(cfg.rig)
+    if len(spec.mounts) > 1:  # a reach table; one boom keeps today's path and file format
+        rig = composed_rig(cfg, model_setting)  # boom_model: every boom of its kind; boom_models: per boom
         return solve_rig(cfg, rig, settings, hybrid, tracking, plan_path, paths, strict)
+    build_rig(spec, cfg.tunnel, cfg.safety, boom_cfg=cfg.boom)  # the one-boom rig checked; solved with `boom`
+    if cfg.get("boom_models"):
+        raise ConfigError(f"boom_models = {as_dict(cfg.boom_models)!r}: one model per boom of a rig; this is a "
+                          "one-boom solve: use boom_model=<file>")
     boom = load_solve_boom(cfg.boom, cfg.get("boom_model"))
     safety = build_safety(boom, cfg.tunnel, cfg.safety)
     iredes = asdict(settings.iredes) if plan_path.suffix.lower() == ".xml" else {}
@@ -143,9 +149,6 @@ def solve_rig(cfg: DictConfig, rig, settings: SolveSettings, hybrid: HybridSetti
               strict: bool) -> dict:
     """Every hole by every boom of ``rig``, the others at park: the reach table, its JSON and figure,
     published as one set like a single boom's solution."""
-    if cfg.get("boom_model"):
-        raise ConfigError(f"boom_model = {cfg.boom_model!r}: a calibrated boom serves one boom; rig '{rig.name}' "
-                          f"({rig.spec.source}) has booms {rig.names}: use rig=single")
     source = settings.model_uri or project_path(cfg.paths.data) / "models" / f"{settings.network}.pt"
     plan = read_plan(plan_path, settings.max_plan_mb,
                      **(asdict(settings.iredes) if plan_path.suffix.lower() == ".xml" else {}))
@@ -158,7 +161,8 @@ def solve_rig(cfg: DictConfig, rig, settings: SolveSettings, hybrid: HybridSetti
                                                                     "rig": rig.name,
                                                                     "plan_checksum": plan.checksum}) as mlrun:
         mlrun.log_params({"plan": str(plan_path), "rig": rig.name, "solve": as_dict(cfg.solve),
-                          "solver": as_dict(cfg.solver), "plan_checksum": plan.checksum})
+                          "solver": as_dict(cfg.solver), "boom_model": str(cfg.get("boom_model")),
+                          "boom_models": str(cfg.get("boom_models")), "plan_checksum": plan.checksum})
         def network(boom):  # each boom's first start, checked against its config
             return NetworkSolver(boom, load_network(source, boom, tracking.uri, "solve.model_uri")[0], settings.network)
 
@@ -183,12 +187,12 @@ def solve_rig(cfg: DictConfig, rig, settings: SolveSettings, hybrid: HybridSetti
 
 
 def load_solve_boom(boom_cfg, boom_model):
-    """The nominal boom of ``boom/``, or a calibrated one (``boom_model=<file>``)."""
+    """The composed boom ``boom``, or a calibrated one (``boom_model=<file>``) on the composed boom when it is
+    of that kind (else on its kind's config); a missing or bad file is a ConfigError naming ``boom_model``."""
+    boom = load_boom(boom_cfg)
     if not boom_model:
-        return load_boom(boom_cfg)
-    from pipeline.calibration.model_file import load_model
-
-    return load_model(project_path(boom_model))
+        return boom
+    return model_setting("boom_model", boom_model, {boom.name: boom})
 
 
 def invalid_rows(plan) -> int:

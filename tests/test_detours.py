@@ -16,7 +16,7 @@ from pipeline.core.config import load_group_file
 from pipeline.motion.checks import check_path, check_straight_moves
 from pipeline.motion.moves import plan_move
 from pipeline.motion.path import Path, unwrapped
-from pipeline.motion.timing import load_motion, move_time
+from pipeline.motion.timing import move_time, rig_motions
 from pipeline.plans.demo_face import demo_face
 from pipeline.plans.reach import reach_table, rig_solvers
 from pipeline.round.detours import RETRACT, STRAIGHT, MoveBook
@@ -34,7 +34,7 @@ def demo(safety):
     rig = build_rig("twin", load_group_file("tunnel", "horseshoe"), load_group_file("safety", "paper"))
     plan = demo_face(safety=safety)
     reach = reach_table(plan, rig, rig_solvers(rig, lambda b: None, HybridSettings()), "hybrid")
-    motions = [load_motion(m.boom) for m in rig.booms]
+    motions = rig_motions(load_group_file("motion", "jumbo8"), rig.booms)
     inst, oracle, _ = round_instance(rig, plan, reach, motions, RoundSettings())
     return rig, inst, oracle
 

@@ -1,7 +1,13 @@
 """Each DVC stage's code deps are exactly the files of its import closure: every file it may run is a
 dep (so `dvc repro` cannot call it up to date after its code changed), and every code dep is a file it
-runs (so editing a module it never runs, a drill-plan reader say, does not retrain the study)."""
+runs (so editing a module it never runs, a drill-plan reader say, does not retrain the study).
 
+Settings reach a stage as params (params.yaml, the composition of conf/), never as files read behind
+DVC's back: no module below the composition root (the stages, ``pipeline/assembly/``,
+``pipeline/core/config.py``) reads ``conf/``; a conf file a stage's cmd names (``rig=twin``) is a dep;
+and every stage that times motion lists ``motion`` in its params."""
+
+import ast
 import re
 
 import import_graph as g
@@ -26,8 +32,11 @@ def stages() -> dict[str, dict]:
 STAGES = stages()
 
 
+CONF = "conf/"
+
+
 def code_deps(stage: dict) -> list[str]:
-    return [d for d in stage["deps"] if not d.startswith(DATA)]
+    return [d for d in stage["deps"] if not d.startswith((DATA, CONF))]
 
 
 def closure_files(stage: dict) -> set[str]:
@@ -107,3 +116,121 @@ def test_the_rewriter_restores_the_exact_deps():
     coarse = text.replace("      - pipeline/evaluate.py\n", "      - pipeline/evaluate.py\n      - pipeline/plans\n", 1)
     coarse = coarse.replace("\n      - pipeline/evaluation/metrics.py\n", "\n", 1)  # evaluate's, not train's
     assert coarse != text and g.rewrite_dvc_code_deps(coarse, MODULES) == text
+
+
+# --- settings: params, never conf/ files read below the composition root ---------------------------------
+
+CONF_READERS = {"load_group_file", "CONF_DIR", "compose", "available"}  # pipeline.core.config's conf/ readers
+PATH_CALLS = {"Path", "PurePath", "open", "load", "safe_load", "read_text", "glob", "is_file", "exists"}
+
+
+def composition_root(module: str) -> bool:
+    """Where conf/ may be read: the stages, the assembly (docs/design.md), the config loader itself."""
+    return g.layer(module) == "stages" or g.layer(module) == "assembly" or module == "pipeline.core.config"
+
+
+def _conf_text(node) -> bool:
+    """A string constant or f-string that is a path into conf/."""
+    if isinstance(node, ast.JoinedStr):
+        node = node.values[0] if node.values else None
+    return isinstance(node, ast.Constant) and isinstance(node.value, str) and (
+        node.value == "conf" or node.value.startswith(CONF))
+
+
+def conf_reads(modules: dict[str, str]) -> list[str]:
+    """``module:line: what`` for every read of conf/ below the composition root: a use of one of
+    pipeline.core.config's readers (imported, or as an attribute), or a ``conf/`` path built or opened."""
+    bad = []
+    for module, source in modules.items():
+        if composition_root(module):
+            continue
+        for node in ast.walk(ast.parse(source)):
+            line = getattr(node, "lineno", 0)
+            if isinstance(node, ast.ImportFrom) and (node.module or "").endswith("core.config"):
+                bad += [f"{module}:{line}: imports {a.name}" for a in node.names if a.name in CONF_READERS]
+            elif isinstance(node, ast.Attribute) and node.attr in CONF_READERS and isinstance(node.value, ast.Name) \
+                    and node.value.id == "config":
+                bad.append(f"{module}:{line}: uses config.{node.attr}")
+            elif isinstance(node, ast.BinOp) and isinstance(node.op, ast.Div) and (
+                    _conf_text(node.left) or _conf_text(node.right)):
+                bad.append(f"{module}:{line}: builds a conf/ path")
+            elif isinstance(node, ast.Call) and any(_conf_text(a) for a in node.args):
+                name = node.func.attr if isinstance(node.func, ast.Attribute) else getattr(node.func, "id", "")
+                if name in PATH_CALLS:
+                    bad.append(f"{module}:{line}: {name}() of a conf/ path")
+    return bad
+
+
+CLEAN = {"pipeline": "", "pipeline.core": "", "pipeline.core.config": "CONF_DIR = 1\ndef load_group_file(): pass\n",
+         "pipeline.assembly": "", "pipeline.assembly.rig": "from pipeline.core.config import load_group_file\n",
+         "pipeline.schedule": "from pipeline.core.config import load_group_file, compose\n",
+         "pipeline.motion": "", "pipeline.motion.timing": "def f(src):\n    raise ValueError(f'conf/motion/{src}')\n"}
+
+
+def test_the_conf_checker_passes_a_clean_tree():
+    assert conf_reads(CLEAN) == []
+
+
+@pytest.mark.parametrize(("source", "message"), [
+    ("from pipeline.core.config import load_group_file\n", "pipeline.motion.timing:1: imports load_group_file"),
+    ("def f():\n    from pipeline.core.config import CONF_DIR, as_dict\n", "timing:2: imports CONF_DIR"),
+    ("from pipeline.core import config\nx = config.load_group_file('motion', 'jumbo8')\n",
+     "timing:2: uses config.load_group_file"),
+    ("from ..core.config import compose\n", "imports compose"),
+    ("from pathlib import Path\nROOT = Path('.')\np = ROOT / 'conf' / 'motion'\n", "timing:3: builds a conf/ path"),
+    ("import yaml\ndef f(n):\n    return yaml.safe_load(open(f'conf/motion/{n}.yaml'))\n",
+     "timing:3: open() of a conf/ path"),
+    ("from omegaconf import OmegaConf\nx = OmegaConf.load('conf/motion/jumbo8.yaml')\n",
+     "timing:2: load() of a conf/ path"),
+])
+def test_the_conf_checker_catches_a_planted_read(source, message):
+    bad = conf_reads({**CLEAN, "pipeline.motion.timing": source})
+    assert any(message in b for b in bad), bad
+
+
+def test_nothing_below_the_composition_root_reads_conf():
+    bad = conf_reads(MODULES)
+    assert not bad, "conf/ read below the composition root (settings must come in as nodes or objects):\n" + \
+        "\n".join(bad)
+
+
+def named_conf_files(cmd: str) -> set[str]:
+    """The conf files a stage's cmd selects by name (``rig=twin``: conf/rig/twin.yaml), which the stage
+    then reads itself (params.yaml composes the defaults only)."""
+    return {f"{CONF}{k}/{v}.yaml" for k, v in re.findall(r"(?<![\w.+])(\w+)=(\w+)", cmd)
+            if (g.ROOT / CONF / k / f"{v}.yaml").is_file()}
+
+
+def test_the_named_conf_reader_sees_rig_twin():
+    assert named_conf_files("python -m pipeline.x ${app} rig=twin a.rig=trio hydra.run.dir=logs") == \
+        {"conf/rig/twin.yaml"}
+
+
+@pytest.mark.parametrize("name", sorted(STAGES))
+def test_every_conf_file_a_stage_reads_is_a_dep_and_no_other(name):
+    deps = {d for d in STAGES[name]["deps"] if d.startswith(CONF)}
+    assert deps == named_conf_files(STAGES[name]["cmd"]), name
+    assert all((g.ROOT / d).is_file() for d in deps), name
+
+
+def params_of(stage: dict) -> set[str]:
+    return {p for p in stage.get("params", []) if isinstance(p, str)}
+
+
+@pytest.mark.parametrize("name", sorted(STAGES))
+def test_every_stage_that_times_motion_lists_its_params(name):
+    """The motion model is built from the composed ``motion`` node; a stage whose code can time a move
+    must list it, or `dvc status` calls it up to date after conf/motion changed."""
+    timed = "pipeline/motion/timing.py" in closure_files(STAGES[name])
+    assert ("motion" in params_of(STAGES[name])) == timed, (name, timed)
+
+
+@pytest.mark.parametrize("name", ["schedule", "move_benchmark", "solve"])
+def test_the_stages_that_place_a_rig_list_the_boom_models(name):
+    assert {"boom", "boom_model", "boom_models"} <= params_of(STAGES[name])
+
+
+def test_the_motion_check_is_not_vacuous():
+    assert "pipeline/motion/timing.py" in closure_files(STAGES["schedule"])
+    assert "pipeline/motion/timing.py" in closure_files(STAGES["move_benchmark"])
+    assert "pipeline/motion/timing.py" not in closure_files(STAGES["train@cuikm"])

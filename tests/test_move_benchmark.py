@@ -13,7 +13,7 @@ from pipeline.core.errors import ConfigError
 from pipeline.motion.benchmark import MoveBenchmarkSettings, distance_rate, path_time, redundancy
 from pipeline.motion.benchmark import move_benchmark as run_moves
 from pipeline.motion.moves import KINDS
-from pipeline.motion.timing import load_motion, move_time
+from pipeline.motion.timing import move_time, rig_motions
 from pipeline.plans.csv_plan import read_csv_plan, write_csv_plan
 from pipeline.plans.reach import reach_table, rig_solvers
 from pipeline.plans.read import read_plan
@@ -33,7 +33,7 @@ def setup(tmp_path_factory, make_cfg):
     rig = build_rig(cfg.rig, cfg.tunnel, cfg.safety)
     solvers = rig_solvers(rig, lambda b: None, HybridSettings(deep_starts=32))
     reach = reach_table(plan, rig, solvers, "hybrid (no network)")
-    limits = [load_motion(m.boom).joints for m in rig.booms]
+    limits = [m.joints for m in rig_motions(cfg.motion, rig.booms)]
     return tmp, rig, plan, solvers, reach, limits
 
 

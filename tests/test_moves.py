@@ -18,10 +18,11 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.geometry.rig import load_rig
+from pipeline.assembly.rig import load_rig
+from pipeline.core.config import load_group_file
 from pipeline.geometry.tunnel import SURFACES
 from pipeline.motion.moves import PlannerSettings, plan_move
-from pipeline.motion.timing import load_motion, move_time, profile
+from pipeline.motion.timing import motion_from_config, move_time, profile
 
 D = torch.float64
 FINE = 0.01 / 5  # m: 5x the checks' 1 cm
@@ -49,7 +50,7 @@ def rig(safety):
 
 @pytest.fixture(scope="module")
 def limits(jumbo8):
-    return load_motion(jumbo8).joints
+    return motion_from_config(load_group_file("motion", "jumbo8"), jumbo8).joints
 
 
 def _q(boom, values):
@@ -270,7 +271,6 @@ def test_bad_input_is_named(rig, limits, jumbo8):
 def test_trio_middle_boom_is_checked_against_both_neighbours(safety, limits, jumbo8):
     """On the trio (8 m drift), M lifting its boom is clear of L and R by the oracle, both standing at
     park; M swinging 45 deg towards L ends inside L's standing place and is refused, naming L."""
-    from pipeline.core.config import load_group_file
     from pipeline.geometry.tunnel import Horseshoe
 
     trio = load_rig("trio", Horseshoe.from_config(load_group_file("tunnel", "horseshoe_wide")), safety.distances,

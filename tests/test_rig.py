@@ -5,9 +5,10 @@ import math
 import pytest
 import torch
 
+from pipeline.assembly.rig import load_rig, rig_booms, rig_spec
 from pipeline.core.config import compose, load_group_file
 from pipeline.core.errors import ConfigError
-from pipeline.geometry.rig import build_rig, load_rig, load_rig_spec, parse_rig
+from pipeline.geometry.rig import build_rig, parse_rig
 from pipeline.geometry.tunnel import Horseshoe
 
 D = torch.float64
@@ -156,11 +157,12 @@ BAD = {
 def test_bad_rig_files_name_the_file_and_the_boom(case, safety):
     node, message = BAD[case]
     with pytest.raises(ConfigError, match=message):
-        build_rig(parse_rig(node, "conf/rig/bad.yaml"), safety.tunnel, safety.distances, safety.n_points)
+        spec = parse_rig(node, "conf/rig/bad.yaml")
+        build_rig(spec, rig_booms(spec), safety.tunnel, safety.distances, safety.n_points)
 
 
 def test_every_rig_file_parses():
     for name in ("single", "twin", "trio"):
-        spec = load_rig_spec(name)
+        spec = rig_spec(name)
         assert spec.name == name and spec.source == f"conf/rig/{name}.yaml"
         assert all(m.boom == "jumbo8" for m in spec.mounts)

@@ -219,8 +219,32 @@ def test_a_bad_rig_is_named_through_solve(tmp_path, make_cfg, override, message)
         solve.run(make_cfg(tmp_path, "rig=twin", override, f"plan={tmp_path}/none.csv"))
 
 
-def test_a_calibrated_boom_is_refused_for_a_rig_of_several_booms(tmp_path, make_cfg):
-    demo_face.run(make_cfg(tmp_path))
-    plan = tmp_path / "data" / "plans" / "demo_face.csv"
-    with pytest.raises(ConfigError, match=r"boom_model = 'x.json': a calibrated boom serves one boom; rig 'twin'"):
-        solve.run(make_cfg(tmp_path, "rig=twin", "boom_model=x.json", f"plan={plan}"))
+def test_a_calibrated_twin_is_solved_for_its_calibrated_booms(study, make_cfg, jumbo8):
+    """boom_model= with rig=twin (refused before issue 26): every ok row's joints put the calibrated boom's
+    collar on the hole (its own FK, shifted by the base), where the nominal boom at the same joints misses
+    by centimetres: the reach table solved for the calibrated model, not the nominal one."""
+    from pipeline.calibration.model_file import load_model, save_model
+
+    tmp = study
+    twists = torch.zeros(jumbo8.n_rows, 6, dtype=D)
+    twists[1, :3] = torch.tensor([0.0035, -0.002, 0.003], dtype=D)
+    twists[2, 3:] = torch.tensor([0.003, -0.003, 0.002], dtype=D)
+    model_path = tmp / "calibrated.yaml"
+    save_model(model_path, jumbo8, twists)
+    holes = read_csv_plan(tmp / "data" / "plans" / "demo_face.csv").holes.iloc[::9].reset_index(drop=True)
+    plan = tmp / "data" / "plans" / "calibrated_face.csv"
+    write_csv_plan(holes, plan)
+    solve.run(make_cfg(tmp, *TINY, f"plan={plan}", "rig=twin", f"boom_model={model_path}", "solve.figure=false"))
+    table = _read(plan.with_name("calibrated_face_solution.csv"))
+    ok = table[table["status"] == "ok"]
+    assert set(ok["boom"]) == {"L", "R"} and len(set(ok["hole_id"])) == len(holes)
+    model = load_model(model_path, jumbo8)
+    collars = holes.set_index("hole_id")[["collar_x", "collar_y", "collar_z"]]
+    for name, rows in ok.groupby("boom"):
+        base = [0.0, 0.8, 0.0] if name == "L" else [0.0, -0.8, 0.0]  # conf/rig/twin.yaml
+        q = torch.tensor(rows[jumbo8.joint_names].to_numpy(), dtype=D)
+        want = torch.tensor(collars.loc[rows["hole_id"]].to_numpy(), dtype=D)
+        calibrated = model.tool_pose_from_frames(_shift(model.frames(q), base))[0]
+        nominal = jumbo8.tool_pose_from_frames(_shift(jumbo8.frames(q), base))[0]
+        assert (calibrated - want).norm(dim=-1).max() < 2e-5, name
+        assert (nominal - want).norm(dim=-1).min() > 0.005, name

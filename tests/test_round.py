@@ -12,12 +12,12 @@ import pytest
 import torch
 from fk_rounds import boom_joints
 
+from pipeline.assembly.rig import load_rig
 from pipeline.core.config import load_group_file
 from pipeline.core.errors import ConfigError
 from pipeline.geometry.boom_pair import BoomPair
-from pipeline.geometry.rig import load_rig
 from pipeline.motion.checks import lever_arms
-from pipeline.motion.timing import load_motion, profile
+from pipeline.motion.timing import motion_from_config, profile
 from pipeline.round.baselines import naive_routes, nearest_routes, side_allocation
 from pipeline.round.bounds import lower_bound
 from pipeline.round.instance import Instance, RoundSettings, drill_phases, parse_round, precedence_indices
@@ -201,7 +201,7 @@ def twin(safety):
 
 @pytest.fixture(scope="module")
 def motion(jumbo8):
-    return load_motion(jumbo8)
+    return motion_from_config(load_group_file("motion", "jumbo8"), jumbo8)
 
 
 _joints = boom_joints  # joints around each boom's face region (feed near +x, q7 picks its side)

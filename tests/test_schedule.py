@@ -21,9 +21,9 @@ import pytest
 import torch
 
 from pipeline import demo_face, schedule
-from pipeline.core.config import PROJECT_ROOT
+from pipeline.core.config import PROJECT_ROOT, load_group_file
 from pipeline.core.errors import ConfigError, InputError
-from pipeline.motion.timing import load_motion
+from pipeline.motion.timing import motion_from_config
 
 D = torch.float64
 SPEC_DRILL = lambda L: 10.0 + L / 2.5 * 60.0 + L / 1.0  # noqa: E731  spec section 7, by hand
@@ -109,7 +109,7 @@ def test_independent_checker_on_the_trajectory_file(small_round):
 def test_joint_speeds_respected_between_trajectory_rows(small_round, jumbo8):
     tmp, _, _, _ = small_round
     traj = pd.read_csv(tmp / "small_trajectory.csv", keep_default_na=False)
-    limits = load_motion(jumbo8).joints
+    limits = motion_from_config(load_group_file("motion", "jumbo8"), jumbo8).joints
     names = list(jumbo8.joint_names)
     for name in ("L", "R"):
         rows = traj[traj["boom"] == name]
@@ -234,3 +234,49 @@ def test_round_benchmark_writes_its_table_and_each_cells_trajectory(face_plan, m
     traj = pd.read_csv(tmp / "data" / "benchmark" / "rounds" / "gen20_single_trajectory.csv", keep_default_na=False)
     assert traj["t"].max() == pytest.approx(row["makespan_s"])
     assert (traj["event"] == "collar").sum() == row["drilled"]
+
+
+def test_the_face_is_drawn_as_seen_from_the_rig(small_round):
+    """Boom L (base y = +0.8 m) on the left of the face figure: y decreasing to the right, said on the axis."""
+    from pipeline.assembly.rig import composed_rig
+    from pipeline.round.figures import face_figure
+
+    tmp, cfg, _, holes = small_round
+    rig = composed_rig(cfg)
+    r = pd.read_csv(tmp / "small_round.csv", keep_default_na=False, na_values=[""])
+    collars = holes[["collar_x", "collar_y", "collar_z"]].to_numpy(float)
+    ax = face_figure(r, collars, rig).axes[0]
+    ax.figure.canvas.draw()  # the Agg canvas: data -> screen transforms are final
+    screen_x = {b: ax.transData.transform(collars[(r["boom"] == b).to_numpy()][:, 1:])[:, 0].mean() for b in "LR"}
+    assert screen_x["L"] < screen_x["R"] and ax.xaxis_inverted()
+    assert "y decreasing to the right" in ax.get_xlabel() and "L) on the left" in ax.get_xlabel()
+
+
+def test_motion_and_boom_model_settings_reach_the_round(small_round, make_cfg, jumbo8):
+    """motion.joint_speeds.q1=7.5 (half the file's swing speed) raises the lower bound and changes the
+    makespan; boom_model= (a calibrated jumbo8) makes every drilled hole's joints put the calibrated boom's
+    collar on the hole, which the nominal boom at those joints misses by more than 5 mm."""
+    from pipeline.calibration.model_file import load_model, save_model
+
+    tmp, _, base, holes = small_round
+    twists = torch.zeros(jumbo8.n_rows, 6, dtype=D)
+    twists[1, :3] = torch.tensor([0.0035, -0.002, 0.003], dtype=D)
+    twists[2, 3:] = torch.tensor([0.003, -0.003, 0.002], dtype=D)
+    model_path = tmp / "calibrated.yaml"
+    save_model(model_path, jumbo8, twists)
+    slow = schedule.run(make_cfg(tmp, *FAST, f"plan={tmp / 'small.csv'}", f"out={tmp / 'slow' / 'slow_round.csv'}",
+                                 "motion.joint_speeds.q1=7.5", f"boom_model={model_path}",
+                                 "schedule.figures=false", "schedule.replay=false", "schedule.baselines=false"))
+    assert slow["lower_bound_s"] > base["lower_bound_s"] + 1e-3
+    assert slow["makespan_s"] != pytest.approx(base["makespan_s"], abs=1e-3)
+    r = pd.read_csv(tmp / "slow" / "slow_round.csv", keep_default_na=False, na_values=[""])
+    ok = r[r["status"] == "ok"]
+    assert len(ok) == len(holes)
+    model = load_model(model_path, jumbo8)
+    collars = holes.set_index("hole_id")[["collar_x", "collar_y", "collar_z"]]
+    for name, rows in ok.groupby("boom"):
+        base_y = 0.8 if name == "L" else -0.8  # conf/rig/twin.yaml
+        q = torch.tensor(rows[jumbo8.joint_names].to_numpy(float), dtype=D)
+        want = torch.tensor(collars.loc[rows["hole_id"]].to_numpy(), dtype=D) - torch.tensor([0, base_y, 0], dtype=D)
+        assert (model.tool_pose(q)[0] - want).norm(dim=-1).max() < 2e-5, name
+        assert (jumbo8.tool_pose(q)[0] - want).norm(dim=-1).min() > 0.005, name

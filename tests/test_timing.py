@@ -11,10 +11,10 @@ from pipeline.motion.timing import (
     drilling_time,
     full_turn,
     joint_times,
-    load_motion,
     motion_from_config,
     move_time,
     profile,
+    rig_motions,
     wrap,
 )
 
@@ -26,7 +26,7 @@ SPEEDS = [r(15), r(12), 0.3, r(20), r(15), r(15), r(25), 0.5]  # spec section 7
 
 @pytest.fixture(scope="module")
 def motion(jumbo8):
-    return load_motion(jumbo8)
+    return motion_from_config(load_group_file("motion", "jumbo8"), jumbo8)
 
 
 def _move(limits, **steps):
@@ -154,13 +154,42 @@ def _cfg(**changes):
 
 
 @pytest.mark.parametrize("cfg, message", [
-    (_cfg(joint_speeds={"q1": 15}), r"bad\.yaml: joint_speeds must list every joint.*missing \['q2'"),
+    (_cfg(joint_speeds={"q1": 15}), r"^motion\.joint_speeds must list every joint.*missing \['q2'"),
     (_cfg(joint_speeds={**{f"q{i}": 1 for i in range(1, 9)}, "q9": 1}), r"unknown \['q9'\]"),
-    (_cfg(joint_speeds={**{f"q{i}": 1 for i in range(1, 9)}, "q3": -0.3}), r"bad\.yaml: joint_speeds\.q3 = -0\.3"),
-    (_cfg(accel_time=0), r"bad\.yaml: accel_time = 0\.0: must be > 0"),
-    (_cfg(drilling={"rate_m_per_min": 0}), r"bad\.yaml: drilling\.rate_m_per_min = 0\.0: must be > 0"),
-    (_cfg(jerk=1), r"bad\.yaml\.jerk: unknown setting"),
+    (_cfg(joint_speeds={**{f"q{i}": 1 for i in range(1, 9)}, "q3": -0.3}), r"^motion\.joint_speeds\.q3 = -0\.3"),
+    (_cfg(joint_speeds=None), r"^motion\.joint_speeds = None: expected a mapping"),
+    (_cfg(accel_time=0), r"^motion\.accel_time = 0\.0: must be > 0"),
+    (_cfg(drilling={"rate_m_per_min": 0}), r"^motion\.drilling\.rate_m_per_min = 0\.0: must be > 0"),
+    (_cfg(jerk=1), r"^motion\.jerk: unknown setting"),
+    (_cfg(boom="huang9"), r"^motion\.boom = 'huang9': these motion settings are for booms of kind 'huang9', not "
+                          r"for boom 'jumbo8'"),
 ])
-def test_bad_motion_files(jumbo8, cfg, message):
+def test_bad_motion_settings_name_the_setting(jumbo8, cfg, message):
     with pytest.raises(ConfigError, match=message):
-        motion_from_config(cfg, jumbo8, "conf/motion/bad.yaml")
+        motion_from_config(cfg, jumbo8)
+
+
+def test_the_motion_is_the_composed_node_with_its_overrides(jumbo8):
+    """`motion.*` on the command line reaches the model: q1 at 7.5 deg/s (not the file's 15) and 1 s to speed."""
+    from pipeline.core.config import compose
+
+    node = compose(["motion.joint_speeds.q1=7.5", "motion.accel_time=1.0"]).motion
+    m = motion_from_config(node, jumbo8)
+    assert m.joints.v[0] == pytest.approx(math.radians(7.5), rel=1e-15)
+    assert m.joints.a[0] == pytest.approx(math.radians(7.5) / 1.0, rel=1e-15)
+    assert m.joints.v[1] == pytest.approx(math.radians(12), rel=1e-15)  # the file's, untouched
+    # a 30 deg swing alone: 30/7.5 + 1.0 = 5 s (the file's speeds give 30/15 + 0.5 = 2.5 s)
+    qb = torch.zeros(8, dtype=D)
+    qb[0] = math.radians(30)
+    assert float(move_time(torch.zeros(8, dtype=D), qb, m.joints)) == pytest.approx(5.0, rel=1e-12)
+
+
+def test_a_rig_boom_of_another_kind_is_refused_by_name(jumbo8):
+    from types import SimpleNamespace
+
+    from pipeline.assembly.build import load_boom
+
+    booms = [SimpleNamespace(name="L", boom=jumbo8), SimpleNamespace(name="X", boom=load_boom("huang9"))]
+    with pytest.raises(ConfigError, match=r"^rig boom 'X' \(a 'huang9'\): motion\.boom = 'jumbo8'"):
+        rig_motions(load_group_file("motion", "jumbo8"), booms)
+    assert len(rig_motions(load_group_file("motion", "jumbo8"), booms[:1])) == 1

@@ -1,28 +1,155 @@
-"""Build a rig (conf/rig/<name>.yaml) in the configured tunnel with the configured safety distances.
+"""Build a rig (conf/rig/<name>.yaml) in the configured tunnel with the configured safety distances, its
+booms from the composed config (docs/rig.md, "Which model each boom drills with").
 
-Apart from :mod:`pipeline.assembly.build` so that the study's stages, which never place a rig, do not
-depend on the rig's code (DVC code deps are import closures)."""
+This is the composition root's side of a rig: the only place that reads a rig file or another boom
+kind's config by name. :mod:`pipeline.geometry.rig` is handed the parsed node and one :class:`Boom` per
+boom. Apart from :mod:`pipeline.assembly.build` so that the study's stages, which never place a rig, do
+not depend on the rig's code (DVC code deps are import closures)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
+
+from pipeline.assembly.build import load_boom
 from pipeline.core.config import as_dict, load_group_file
 from pipeline.core.errors import ConfigError
 from pipeline.geometry.collision import SafetyDistances
-from pipeline.geometry.rig import Rig, parse_rig, rig_file
+from pipeline.geometry.kinematics import Boom
+from pipeline.geometry.rig import Rig, RigSpec, parse_rig, rig_file
 from pipeline.geometry.rig import build_rig as place_booms
 from pipeline.geometry.tunnel import Horseshoe
 
+# (setting, model file, nominal boom of each kind) -> the calibrated Boom; errors name the setting. The
+# stage passes pipeline.calibration.model_file.model_setting, which this layer may not import.
+ModelLoader = Callable[[str, str, Mapping[str, Boom]], Boom]
 
-def build_rig(rig_cfg, tunnel_cfg, safety_cfg) -> Rig:
-    """The rig of the ``rig`` node (or a rig name: ``conf/rig/<name>.yaml``, as a stage run on the composed
-    params.yaml is given with ``rig=twin``), each boom with its own safety model seen from its base (the same
-    tunnel and distances as :func:`pipeline.assembly.build.build_safety`); errors name the rig file and
-    the boom (:func:`pipeline.geometry.rig.build_rig`)."""
+
+def rig_spec(rig_cfg) -> RigSpec:
+    """The ``rig`` node parsed, or a rig name (``conf/rig/<name>.yaml``, as a stage run on the composed
+    params.yaml is given with ``rig=twin``)."""
     node = load_group_file("rig", rig_cfg) if isinstance(rig_cfg, str) else as_dict(rig_cfg)
     source = rig_file(node["name"]) if isinstance(node, dict) and isinstance(node.get("name"), str) else "rig"
+    return parse_rig(node, source)
+
+
+def rig_tunnel(name: str, default) -> dict:
+    """The tunnel a rig file selects (its ``override /tunnel@_global_.tunnel: <name>`` default, as Hydra
+    applies it when the rig is composed), else ``default``: for rigs loaded by name."""
+    for d in load_group_file("rig", name).get("defaults", []) or []:
+        if isinstance(d, dict):
+            for k, v in d.items():
+                if "tunnel" in k:
+                    return load_group_file("tunnel", v)
+    return as_dict(default)
+
+
+def nominal_booms(spec: RigSpec, boom_cfg=None) -> dict[str, Boom]:
+    """Boom kind -> its nominal :class:`Boom` for every kind of the rig: the composed ``boom`` node for
+    its own kind (so ``boom.*`` overrides reach the rig), ``conf/boom/<kind>.yaml`` for the others."""
+    composed = load_boom(boom_cfg) if boom_cfg is not None else None
+    out: dict[str, Boom] = {}
+    for m in spec.mounts:
+        if m.boom in out:
+            continue
+        if composed is not None and composed.name == m.boom:
+            out[m.boom] = composed
+            continue
+        try:
+            out[m.boom] = load_boom(m.boom)
+        except ConfigError as e:
+            raise ConfigError(f"{spec.source}: boom '{m.name}'.boom = {m.boom!r}: {e}") from e
+    return out
+
+
+def boom_models_setting(value) -> dict[str, str]:
+    """``boom_models``: null or a mapping rig boom name -> calibrated model file."""
+    if value is None:
+        return {}
+    node = as_dict(value) if isinstance(value, Mapping) else value
+    if not isinstance(node, dict) or not all(isinstance(k, str) and isinstance(v, str) and v for k, v in node.items()):
+        raise ConfigError(f"boom_models = {value!r}: expected a mapping rig boom name -> model file "
+                          "(e.g. 'boom_models={L: calib/L.yaml, R: calib/R.yaml}')")
+    return node
+
+
+def model_files(cfg) -> list[str]:
+    """The calibrated model files a composed config names (``boom_model``, ``boom_models.*``): inputs
+    that no output of a stage may overwrite."""
+    one = cfg.get("boom_model")
+    return [str(v) for v in ([one] if one else []) + list(boom_models_setting(cfg.get("boom_models")).values())]
+
+
+def rig_booms(spec: RigSpec, boom_cfg=None, boom_model: str | None = None, boom_models=None,
+              load_model: ModelLoader | None = None) -> dict[str, Boom]:
+    """Rig boom name -> the :class:`Boom` it drills with, most specific first: ``boom_models.<name>`` (a
+    calibrated model of that boom), ``boom_model`` (a calibrated model of one kind: every boom of that
+    kind), the composed ``boom`` node (its kind), ``conf/boom/<kind>.yaml``. Every file is read here,
+    before any work; a bad one is a :class:`ConfigError` naming the setting."""
+    composed = load_boom(boom_cfg) if boom_cfg is not None else None
+    nominal = nominal_booms(spec, composed)
+    known = {composed.name: composed, **nominal} if composed is not None else nominal  # what a model may sit on
+    per_boom = boom_models_setting(boom_models)
+    names = [m.name for m in spec.mounts]
+    unknown = sorted(set(per_boom) - set(names))
+    if unknown:
+        raise ConfigError(f"boom_models: no boom {unknown} in rig '{spec.name}' ({spec.source}); booms: {names}")
+    if (boom_model or per_boom) and load_model is None:
+        raise ConfigError("boom_model / boom_models: this command cannot load calibrated boom models")
+    by_kind: dict[str, Boom] = {}
+    if boom_model:
+        model = load_model("boom_model", boom_model, known)
+        if model.name not in nominal:
+            raise ConfigError(f"boom_model = {boom_model!r}: a model of boom {model.name!r}, but rig '{spec.name}' "
+                              f"({spec.source}) has booms of kind {sorted(nominal)}")
+        by_kind[model.name] = model
+    out = {}
+    for m in spec.mounts:
+        if m.name in per_boom:
+            model = load_model(f"boom_models.{m.name}", per_boom[m.name], known)
+            if model.name != m.boom:
+                raise ConfigError(f"boom_models.{m.name} = {per_boom[m.name]!r}: a model of boom {model.name!r}, but "
+                                  f"boom '{m.name}' of rig '{spec.name}' is a {m.boom!r} ({spec.source})")
+            out[m.name] = model
+        else:
+            out[m.name] = by_kind.get(m.boom, nominal[m.boom])
+    return out
+
+
+def safety_parts(safety_cfg) -> tuple[SafetyDistances, int]:
+    """The ``safety`` node's distances and points per capsule (as :func:`pipeline.assembly.build.build_safety`)."""
     safety = as_dict(safety_cfg)
     n = safety.get("points_per_capsule", 16)
     if isinstance(n, bool) or not isinstance(n, int):
         raise ConfigError(f"safety.points_per_capsule = {n!r}: expected an integer")
-    distances = SafetyDistances.from_config({k: v for k, v in safety.items() if k != "points_per_capsule"})
-    return place_booms(parse_rig(node, source), Horseshoe.from_config(as_dict(tunnel_cfg)), distances, n)
+    return SafetyDistances.from_config({k: v for k, v in safety.items() if k != "points_per_capsule"}), n
+
+
+def build_rig(rig_cfg, tunnel_cfg, safety_cfg, booms: Mapping[str, Boom] | None = None, boom_cfg=None) -> Rig:
+    """The rig of the ``rig`` node or name (:func:`rig_spec`), each boom with its own safety model seen from
+    its base (the same tunnel and distances as :func:`pipeline.assembly.build.build_safety`). ``booms`` (rig
+    boom name -> :class:`Boom`, from :func:`rig_booms`) gives each boom its model; without it every boom is
+    its kind's nominal boom (:func:`nominal_booms` with ``boom_cfg``). Errors name the rig file and the boom
+    (:func:`pipeline.geometry.rig.build_rig`)."""
+    spec = rig_cfg if isinstance(rig_cfg, RigSpec) else rig_spec(rig_cfg)
+    if booms is None:
+        booms = rig_booms(spec, boom_cfg)
+    distances, n = safety_parts(safety_cfg)
+    return place_booms(spec, booms, Horseshoe.from_config(as_dict(tunnel_cfg)), distances, n)
+
+
+def composed_rig(cfg, load_model: ModelLoader | None = None) -> Rig:
+    """The rig of a composed config (``rig``, ``tunnel``, ``safety``), its booms from ``boom``, ``boom_model``
+    and ``boom_models`` (:func:`rig_booms`): what every stage that places a rig calls first."""
+    spec = rig_spec(cfg.rig)
+    booms = rig_booms(spec, cfg.boom, cfg.get("boom_model"), cfg.get("boom_models"), load_model)
+    # a rig given by name (rig=trio on params.yaml) brings the drift its file selects, as composing it would
+    tunnel = rig_tunnel(cfg.rig, cfg.tunnel) if isinstance(cfg.rig, str) else cfg.tunnel
+    return build_rig(spec, tunnel, cfg.safety, booms)
+
+
+def load_rig(name: str, tunnel: Horseshoe, distances: SafetyDistances, points_per_capsule: int = 16,
+             booms: Mapping[str, Boom] | None = None) -> Rig:
+    """The rig ``conf/rig/<name>.yaml`` in ``tunnel`` with the given safety distances (a safety model's
+    ``safety.tunnel, safety.distances, safety.n_points``), its booms ``booms`` or their kinds' configs."""
+    spec = rig_spec(name)
+    return place_booms(spec, rig_booms(spec) if booms is None else booms, tunnel, distances, points_per_capsule)

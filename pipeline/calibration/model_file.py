@@ -12,6 +12,7 @@ import torch
 import yaml
 
 from pipeline.calibration.error_model import COMPONENTS, DTYPE, ROTATION, BoomWithErrors, parameter_names
+from pipeline.core.config import project_path
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.core.io import write_text
 from pipeline.geometry.kinematics import Boom
@@ -57,9 +58,10 @@ def save_model(path: str | Path, boom: Boom, twists: torch.Tensor, identified: l
     write_text(model_text(boom, twists, identified, fit, notes), path)
 
 
-def load_model(path: str | Path, boom: Boom | None = None) -> BoomWithErrors:
-    """A :class:`BoomWithErrors` from a model file. The nominal boom is ``conf/boom/<boom>.yaml``
-    of the name in the file unless given (then the names must agree)."""
+def load_model(path: str | Path, boom: Boom | Mapping[str, Boom] | None = None) -> BoomWithErrors:
+    """A :class:`BoomWithErrors` from a model file. The nominal boom is ``boom`` if given (then the names
+    must agree), else the one of the file's kind in a mapping kind -> boom (the composition root's nominal
+    booms), else ``conf/boom/<boom>.yaml`` of the name in the file."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such boom model file")
@@ -74,6 +76,8 @@ def load_model(path: str | Path, boom: Boom | None = None) -> BoomWithErrors:
         if doc.get(key) != want:
             raise InputError(f"{path}: {key} = {doc.get(key)!r}; expected {want!r}")
     name = doc.get("boom")
+    if isinstance(boom, Mapping):
+        boom = boom.get(name) if isinstance(name, str) else None
     if boom is None:
         from pipeline.assembly.build import load_boom
 
@@ -99,3 +103,15 @@ def load_model(path: str | Path, boom: Boom | None = None) -> BoomWithErrors:
                 raise InputError(f"{path}: errors.{key}.{c} = {v!r}: expected a finite number")
             twists[r, i] = float(v) / _TO_FILE[i]
     return BoomWithErrors(boom, twists)
+
+
+def model_setting(setting: str, value, nominal: Mapping[str, Boom]) -> BoomWithErrors:
+    """The calibrated model a setting names (``boom_model``, ``boom_models.L``: a file, relative to the
+    project root), on the nominal boom of its kind in ``nominal``; a missing or bad file is a
+    :class:`ConfigError` naming the setting."""
+    if not isinstance(value, (str, Path)) or not str(value):
+        raise ConfigError(f"{setting} = {value!r}: expected the path of a boom model file")
+    try:
+        return load_model(project_path(value), nominal)
+    except (InputError, ConfigError, OSError) as exc:
+        raise ConfigError(f"{setting} = {str(value)!r}: {exc}") from None

@@ -7,9 +7,12 @@ by adding the base offset to every frame origin, and everything downstream (tunn
 boom-boom clearances, their Jacobians) works on those frames. So one tunnel definition serves every
 boom: the tunnel is not copied or shifted, the boom is. Joints stay in the boom's own base frame.
 
-A rig file (``conf/rig/<name>.yaml``) names each boom, its boom config (``conf/boom/<config>.yaml``),
+A rig file (``conf/rig/<name>.yaml``) names each boom, its boom kind (``boom:``, a boom config name),
 its base ``[x, y, z]`` (m) and its park configuration (degrees for revolute joints, metres for
-prismatic ones). Loading checks every boom and names the file and the boom of the first problem.
+prismatic ones). Nothing here reads a file: the composition root (:mod:`pipeline.assembly.rig`) hands
+:func:`build_rig` the parsed rig node and one :class:`Boom` per boom of the rig (the composed ``boom``,
+another kind's config, or a calibrated model: docs/rig.md). Building checks every boom and names the
+file and the boom of the first problem.
 """
 
 from __future__ import annotations
@@ -21,10 +24,9 @@ from dataclasses import dataclass, field
 
 import torch
 
-from pipeline.core.config import load_group_file
 from pipeline.core.errors import ConfigError
 from pipeline.core.settings import parse, rule
-from pipeline.geometry.boom_config import boom_from_config, reject_unknown
+from pipeline.geometry.boom_config import reject_unknown
 from pipeline.geometry.boom_pair import BoomPair
 from pipeline.geometry.collision import SAFETY_KINDS, SafetyDistances, SafetyModel
 from pipeline.geometry.kinematics import Boom
@@ -88,11 +90,6 @@ def parse_rig(node: Mapping, source: str) -> RigSpec:
             raise ConfigError(f"{where}.base = {list(m.base)!r}: expected [x, y, z] (m)")
         mounts.append(m)
     return RigSpec(settings.name, source, settings.d_boom, tuple(mounts))
-
-
-def load_rig_spec(name: str) -> RigSpec:
-    """``conf/rig/<name>.yaml``, parsed."""
-    return parse_rig(load_group_file("rig", name), rig_file(name))
 
 
 def translate_frames(frames: torch.Tensor, offset: torch.Tensor) -> torch.Tensor:
@@ -197,19 +194,21 @@ def _park(m: MountSettings, boom: Boom, where: str) -> torch.Tensor:
     return boom.with_locks(park)
 
 
-def build_rig(spec: RigSpec, tunnel: Horseshoe, distances: SafetyDistances, points_per_capsule: int = 16) -> Rig:
-    """Load each boom's config, place it, and check the rig: every base inside the tunnel profile, every
-    park clear of the boom itself and of the tunnel (seen from its base), and every two parks at least
-    ``d_boom`` apart. Errors name the rig file and the boom."""
-    booms, loaded = [], {}
+def build_rig(spec: RigSpec, booms: Mapping[str, Boom], tunnel: Horseshoe, distances: SafetyDistances,
+              points_per_capsule: int = 16) -> Rig:
+    """Place each boom of ``spec`` (``booms``: boom name in the rig -> its :class:`Boom`, of the kind its
+    ``boom:`` names) and check the rig: every base inside the tunnel profile, every park clear of the
+    boom itself and of the tunnel (seen from its base), and every two parks at least ``d_boom`` apart.
+    Errors name the rig file and the boom."""
+    missing = [m.name for m in spec.mounts if m.name not in booms]
+    if missing:
+        raise ConfigError(f"{spec.source}: no boom model for boom(s) {missing}")
+    booms_out = []
     for m in spec.mounts:
         where = f"{spec.source}: boom '{m.name}'"
-        if m.boom not in loaded:
-            try:
-                loaded[m.boom] = boom_from_config(load_group_file("boom", m.boom))
-            except ConfigError as e:
-                raise ConfigError(f"{where}.boom = {m.boom!r}: {e}") from e
-        boom = loaded[m.boom]
+        boom = booms[m.name]
+        if boom.name != m.boom:
+            raise ConfigError(f"{where}.boom = {m.boom!r}: given a model of boom {boom.name!r}")
         x, y, z = m.base
         if not bool(tunnel.contains(torch.tensor(y, dtype=torch.float64), torch.tensor(z, dtype=torch.float64))):
             raise ConfigError(f"{where}.base = {list(m.base)!r}: outside the tunnel profile (|y| <= "
@@ -221,8 +220,8 @@ def build_rig(spec: RigSpec, tunnel: Horseshoe, distances: SafetyDistances, poin
         if broken:
             raise ConfigError(f"{where}.park = {list(m.park)!r}: the park configuration breaks safety distance(s) "
                               f"by {broken} m (clearance < 0) at base {list(m.base)}")
-        booms.append(mounted)
-    rig = Rig(spec, booms, tunnel)
+        booms_out.append(mounted)
+    rig = Rig(spec, booms_out, tunnel)
     for (i, j), pair in rig._pairs.items():
         a, b = rig.booms[i], rig.booms[j]
         gap = float(pair.distances(a.frames(a.park), b.frames(b.park)).min())
@@ -230,9 +229,3 @@ def build_rig(spec: RigSpec, tunnel: Horseshoe, distances: SafetyDistances, poin
             raise ConfigError(f"{spec.source}: boom '{a.name}' and boom '{b.name}' overlap at park: their capsules are "
                               f"{gap:.3f} m apart, below d_boom = {spec.d_boom} m")
     return rig
-
-
-def load_rig(name: str, tunnel: Horseshoe, distances: SafetyDistances, points_per_capsule: int = 16) -> Rig:
-    """The rig ``conf/rig/<name>.yaml`` in ``tunnel`` with the given safety distances (the composition
-    root passes those of its safety model: ``safety.tunnel, safety.distances, safety.n_points``)."""
-    return build_rig(load_rig_spec(name), tunnel, distances, points_per_capsule)

@@ -12,6 +12,10 @@ Full-turn joints (revolute with a range of 360 degrees: q4 and q7 of jumbo8) tak
 round; their positions along a move are continuous (they may leave [-180, 180] degrees, where the
 chain is the same), so that rows of a trajectory interpolate linearly; :func:`wrap` folds them back.
 
+The motion settings are the composed ``motion`` node (``conf/motion/<boom>.yaml`` selected by
+``motion=``, ``motion.*`` overrides applied), handed in by the stage: nothing here reads a file. The
+node is for booms of one kind (its ``boom`` key): :func:`rig_motions` refuses a rig boom of another kind.
+
 Drilling a hole: collaring, then the hole length at the penetration rate, then the retraction of
 the drill steel over the same length (toe back to collar) at the retraction speed; the boom holds
 the hole's joints throughout.
@@ -20,18 +24,17 @@ the hole's joints throughout.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import torch
 
-from pipeline.core.config import load_group_file
 from pipeline.core.errors import ConfigError
 from pipeline.core.settings import check_rule, coerce, parse, rule
 from pipeline.geometry.boom_config import reject_unknown
 from pipeline.geometry.kinematics import Boom
 
-MOTION_KEYS = {"joint_speeds", "accel_time", "drilling"}
+MOTION_KEYS = {"boom", "joint_speeds", "accel_time", "drilling"}
 
 
 @dataclass(frozen=True)
@@ -58,7 +61,7 @@ class JointLimits:
 
 @dataclass(frozen=True)
 class MotionModel:
-    """A boom's motion file (``conf/motion/<boom>.yaml``): its joint limits and its drilling."""
+    """A boom's motion settings (the composed ``motion`` node): its joint limits and its drilling."""
 
     joints: JointLimits
     drilling: DrillingSettings
@@ -69,36 +72,49 @@ def full_turn(boom: Boom) -> tuple[bool, ...]:
     return tuple(j.revolute and j.locked is None and j.upper - j.lower >= 2 * math.pi - 1e-9 for j in boom.joints)
 
 
-def motion_from_config(cfg: Mapping, boom: Boom, source: str) -> MotionModel:
-    """Read a motion file for ``boom``: ``joint_speeds`` (deg/s for revolute joints, m/s for prismatic
-    ones, one per joint of the boom), ``accel_time`` (s to reach each speed) and ``drilling``."""
+def motion_from_config(cfg: Mapping, boom: Boom, source: str = "motion") -> MotionModel:
+    """The motion node (``source``, the setting's name, prefixes every message: ``motion.accel_time``) for
+    ``boom``: ``boom`` (the boom kind it is for; optional), ``joint_speeds`` (deg/s for revolute joints, m/s
+    for prismatic ones, one per joint of the boom), ``accel_time`` (s to reach each speed) and ``drilling``."""
     if not isinstance(cfg, Mapping):
         raise ConfigError(f"{source}: expected a mapping, got {cfg!r}")
     reject_unknown(cfg, MOTION_KEYS, source)
+    kind = cfg.get("boom")
+    if kind is not None and kind != boom.name:
+        raise ConfigError(f"{source}.boom = {kind!r}: these motion settings are for booms of kind {kind!r}, not for "
+                          f"boom {boom.name!r} (select its motion with motion=<file> of conf/motion/)")
     speeds = cfg.get("joint_speeds")
     if not isinstance(speeds, Mapping):
-        raise ConfigError(f"{source}: joint_speeds = {speeds!r}: expected a mapping joint name -> speed")
+        raise ConfigError(f"{source}.joint_speeds = {speeds!r}: expected a mapping joint name -> speed")
     missing = [n for n in boom.joint_names if n not in speeds]
     extra = sorted(set(speeds) - set(boom.joint_names))
     if missing or extra:
-        raise ConfigError(f"{source}: joint_speeds must list every joint of boom '{boom.name}' "
+        raise ConfigError(f"{source}.joint_speeds must list every joint of boom '{boom.name}' "
                           f"{boom.joint_names}; missing {missing}, unknown {extra}")
-    accel = coerce(cfg.get("accel_time"), "float", f"{source}: accel_time")
-    check_rule(accel, f"{source}: accel_time", gt=0)
+    accel = coerce(cfg.get("accel_time"), "float", f"{source}.accel_time")
+    check_rule(accel, f"{source}.accel_time", gt=0)
     v = []
     for j in boom.joints:
-        where = f"{source}: joint_speeds.{j.name}"
+        where = f"{source}.joint_speeds.{j.name}"
         value = coerce(speeds[j.name], "float", where)
         check_rule(value, where, gt=0)
         v.append(math.radians(value) if j.revolute else value)
-    drilling = parse(DrillingSettings, cfg.get("drilling", {}), f"{source}: drilling")
+    drilling = parse(DrillingSettings, cfg.get("drilling", {}), f"{source}.drilling")
     limits = JointLimits(tuple(boom.joint_names), tuple(v), tuple(x / accel for x in v), full_turn(boom))
     return MotionModel(limits, drilling)
 
 
-def load_motion(boom: Boom) -> MotionModel:
-    """``conf/motion/<boom name>.yaml`` for ``boom``."""
-    return motion_from_config(load_group_file("motion", boom.name), boom, f"conf/motion/{boom.name}.yaml")
+def rig_motions(cfg: Mapping, booms: Sequence, source: str = "motion") -> list[MotionModel]:
+    """One :class:`MotionModel` per boom of a rig (``booms``: its :class:`MountedBoom` s) from the one
+    composed ``motion`` node: every boom must be of the node's kind (``motion.boom``); a rig that mixes
+    kinds is refused, naming the boom, as one node cannot hold two kinds' speeds."""
+    out = []
+    for m in booms:
+        try:
+            out.append(motion_from_config(cfg, m.boom, source))
+        except ConfigError as e:
+            raise ConfigError(f"rig boom '{m.name}' (a {m.boom.name!r}): {e}") from e
+    return out
 
 
 def joint_steps(qa: torch.Tensor, qb: torch.Tensor, limits: JointLimits) -> torch.Tensor:

@@ -10,8 +10,6 @@ import numpy as np
 import pandas as pd
 import torch
 
-from pipeline.assembly.build import build_safety, load_boom
-from pipeline.core.config import load_group_file
 from pipeline.core.errors import ConfigError
 from pipeline.geometry.collision import SafetyModel
 from pipeline.geometry.tunnel import Horseshoe
@@ -20,14 +18,6 @@ from pipeline.plans.iredes import write_iredes_plan
 from pipeline.plans.model import COLLAR, COORDS, TOE, DrillPlan, plan_frame
 
 DEMO_PLAN_DATE = "2026-01-01T00:00:00"  # fixed, so the same layout gives byte-identical files
-
-
-def reference_safety(tunnel: Horseshoe | None = None) -> SafetyModel:
-    """The reference boom ``jumbo8`` with the paper's safety distances in ``tunnel``."""
-    tunnel_cfg = load_group_file("tunnel", "horseshoe")
-    if tunnel is not None:
-        tunnel_cfg = {"width": tunnel.width, "wall_height": tunnel.wall_height}
-    return build_safety(load_boom("jumbo8"), tunnel_cfg, load_group_file("safety", "paper"))
 
 
 def feed_clearance(safety: SafetyModel, collar: torch.Tensor, direction: torch.Tensor) -> dict[str, torch.Tensor]:
@@ -148,7 +138,7 @@ def _frame(kind, prefix, collar, direction, length, diameter_mm):
 def demo_face(
     tunnel: Horseshoe | None = None,
     *,
-    safety: SafetyModel | None = None,
+    safety: SafetyModel,
     x_face: float = 6.5,
     depth: float = 3.5,
     cut_centre: tuple[float, float] = (0.0, 1.6),
@@ -168,7 +158,8 @@ def demo_face(
     diameter_mm: int = 48,
     relief_diameter_mm: int = 102,
 ) -> DrillPlan:
-    """A realistic, drillable round for the reference horseshoe (5.0 x 5.7 m), deterministic.
+    """A realistic, drillable round for the reference horseshoe (5.0 x 5.7 m), deterministic, designed on
+    ``safety`` (the composed boom, tunnel and safety distances: the caller builds it from its config).
 
     Hole types (ids): a parallel-hole cut near the centre-low part of the face, ``n_relief``
     large-diameter uncharged relief holes (R..) inside squares of loaded cut holes (C..);
@@ -195,7 +186,6 @@ def demo_face(
     Stoping holes are the grid points whose (parallel) beam is clear, at least ``min_gap``
     from every other hole. Any remaining violation raises :class:`ConfigError`.
     """
-    safety = safety if safety is not None else reference_safety(tunnel)
     tunnel = safety.tunnel if tunnel is None else tunnel
     if tunnel != safety.tunnel:
         raise ConfigError(f"demo face: tunnel {tunnel} differs from the safety model's {safety.tunnel}")

@@ -11,15 +11,15 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
 
-from pipeline.assembly.build import build_safety, load_boom
-from pipeline.assembly.rig import build_rig
-from pipeline.core.config import as_dict, load_group_file
 from pipeline.core.io import write_csv
-from pipeline.motion.timing import load_motion
+from pipeline.geometry.collision import SafetyModel
+from pipeline.geometry.rig import Rig
+from pipeline.motion.timing import MotionModel
 from pipeline.plans.demo_face import demo_face
 from pipeline.plans.faces import generated_face
 from pipeline.plans.reach import reach_table, rig_solvers
@@ -28,27 +28,23 @@ from pipeline.round.schedule import schedule_round
 from pipeline.solvers.hybrid import HybridSettings
 
 
-def rig_tunnel(name: str, default) -> dict:
-    """The tunnel a rig file selects (its ``override /tunnel@_global_.tunnel: <name>`` default), else ``default``."""
-    for d in load_group_file("rig", name).get("defaults", []) or []:
-        if isinstance(d, dict):
-            for k, v in d.items():
-                if "tunnel" in k:
-                    return load_group_file("tunnel", v)
-    return as_dict(default)
+@dataclass(frozen=True)
+class BenchRig:
+    """One rig of the benchmark, built by the stage from the composed config: the rig (its drift, its
+    booms), the safety model the faces are designed on (that drift), one motion model per boom."""
+
+    rig: Rig
+    safety: SafetyModel
+    motions: list[MotionModel]
 
 
-def round_benchmark(faces: Sequence, rigs: Sequence[str], tunnel_cfg, safety_cfg, hybrid: HybridSettings,
-                    settings: RoundSettings, first_start: Callable, seed: int = 0, say=print,
-                    trajectories: Path | None = None) -> pd.DataFrame:
+def round_benchmark(faces: Sequence, rigs: Sequence[BenchRig], hybrid: HybridSettings, settings: RoundSettings,
+                    first_start: Callable, seed: int = 0, say=print, trajectories: Path | None = None) -> pd.DataFrame:
     """One row per (face, rig); ``faces``: "demo" or hole counts; ``trajectories``: a folder to write
     each cell's trajectory file into (``<face>_<rig>_trajectory.csv``)."""
     rows = []
-    for rig_name in rigs:
-        tunnel = rig_tunnel(rig_name, tunnel_cfg)
-        rig = build_rig(rig_name, tunnel, safety_cfg)
-        safety = build_safety(load_boom("jumbo8"), tunnel, safety_cfg)
-        motions = [load_motion(m.boom) for m in rig.booms]
+    for case in rigs:
+        rig, safety, motions, rig_name = case.rig, case.safety, case.motions, case.rig.name
         for face in faces:
             plan = demo_face(safety=safety) if face == "demo" else generated_face(int(face), seed, safety)
             started = time.perf_counter()

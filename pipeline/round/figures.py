@@ -17,6 +17,9 @@ PLOTLY_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd")
 PHASE_COLOURS = {"drill": "tab:green", "move": "tab:blue", "wait": "tab:red"}
 
 
+FACE_XLABEL = "y (m, rig frame), seen from the rig: y decreasing to the right, +y (boom L) on the left"
+
+
 def face_figure(round_df: pd.DataFrame, collars: np.ndarray, rig, title: str = "") -> Figure:
     """The face (y-z, rig frame): holes coloured by boom, each boom's order drawn from its park."""
     fig = Figure(figsize=(10, 8), layout="constrained")
@@ -41,7 +44,9 @@ def face_figure(round_df: pd.DataFrame, collars: np.ndarray, rig, title: str = "
     if bad.any():
         pts = collars[np.flatnonzero(bad.to_numpy())]
         ax.scatter(pts[:, 1], pts[:, 2], marker="X", c="tab:red", s=70, zorder=5, label=f"not drilled ({len(pts)})")
-    ax.set(aspect="equal", xlabel="y (m, rig frame)", ylabel="z (m)", title=title or f"round of rig '{rig.name}'")
+    # As the operator sees the face from the rig (looking along +x, z up): +y (boom L) on the left.
+    ax.set(aspect="equal", xlabel=FACE_XLABEL, ylabel="z (m)", title=title or f"round of rig '{rig.name}'")
+    ax.invert_xaxis()
     ax.legend(loc="upper right", fontsize=8)
     return fig
 
@@ -122,7 +127,8 @@ def replay_html(trajectory: pd.DataFrame, rig, collars: np.ndarray, frames: int 
     fig.update_layout(
         title=title or f"round of rig '{rig.name}': replay",
         scene={"aspectmode": "data", "xaxis_title": "x (m)", "yaxis_title": "y (m)", "zaxis_title": "z (m)",
-               "camera": {"eye": {"x": -1.6, "y": 0.9, "z": 0.7}}},
+               # from behind the rig, z up: +y (boom L) on the left, as the face figure and the operator see it
+               "camera": {"eye": {"x": -1.6, "y": 0.9, "z": 0.7}, "up": {"x": 0, "y": 0, "z": 1}}},
         sliders=[{"active": 0, "steps": steps, "currentvalue": {"prefix": "t = "}}],
         updatemenus=[{"type": "buttons", "showactive": False, "buttons": [
             {"label": "play", "method": "animate",
