@@ -27,13 +27,12 @@ from pipeline.core.io import write_csv, write_json
 from pipeline.core.settings import coerce, parse
 from pipeline.core.stage import run_stage
 from pipeline.data.holes import joint_box
-from pipeline.learning.network_source import load_network
 from pipeline.motion.benchmark import MoveBenchmarkSettings, distance_rate, move_benchmark, redundancy
 from pipeline.motion.timing import rig_motions
 from pipeline.plans.reach import reach_table, rig_solvers
 from pipeline.plans.read import read_plan
-from pipeline.solvers.base import NetworkSolver
 from pipeline.solvers.hybrid import HybridSettings
+from pipeline.solvers.network_start import first_starts, network_source
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
@@ -51,15 +50,13 @@ def run(cfg: DictConfig) -> dict:
     plan_path = project_path(coerce(cfg.plan, "str", "plan"))
     plan = read_plan(plan_path)
     network = coerce(cfg.solve.network, "str", "solve.network")
-    source = cfg.solve.get("model_uri") or project_path(cfg.paths.data) / "models" / f"{network}.pt"
+    source = network_source(project_path(cfg.paths.data), network, cfg.solve.get("model_uri"))
     out = project_path(cfg.paths.data) / "benchmark"
     box = cfg.holes.sup.get("box")
     with stage_run(tracking, f"move-benchmark-{rig.name}", {"stage": "move_benchmark", "rig": rig.name}) as mlrun:
         mlrun.log_params({"plan": str(plan_path), "rig": rig.name, "move_benchmark": as_dict(cfg.move_benchmark),
                           "solver": as_dict(cfg.solver), "network": str(source)})
-        def first_start(boom):
-            return NetworkSolver(boom, load_network(source, boom, tracking.uri, "solve.model_uri")[0], network)
-
+        first_start = first_starts(source, network, tracking.uri, "solve.model_uri")
         start_box = joint_box(rig.booms[0].boom, None if box is None else as_dict(box))
         solvers = rig_solvers(rig, first_start, hybrid, start_box)
         reach = reach_table(plan, rig, solvers, f"hybrid ({network})")

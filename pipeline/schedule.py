@@ -39,7 +39,6 @@ from pipeline.core.io import require_writable, save_figure, write_csv, write_tex
 from pipeline.core.settings import RuntimeSettings, coerce, parse, rule
 from pipeline.core.stage import run_stage
 from pipeline.data.holes import joint_box
-from pipeline.learning.network_source import load_network
 from pipeline.motion.timing import rig_motions
 from pipeline.plans.model import COLLAR
 from pipeline.plans.reach import reach_table, rig_solvers
@@ -48,8 +47,8 @@ from pipeline.plans.solutions import spreadsheet_safe
 from pipeline.round.instance import parse_round, precedence_indices
 from pipeline.round.output import round_paths, write_round_set
 from pipeline.round.schedule import schedule_round
-from pipeline.solvers.base import NetworkSolver
 from pipeline.solvers.hybrid import HybridSettings
+from pipeline.solvers.network_start import first_starts, network_source
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
@@ -110,9 +109,7 @@ def run(cfg: DictConfig) -> dict:
     precedence_indices(round_settings.precedence, plan.holes["hole_id"].astype(str).tolist())  # before solving
     for line in plan.report():
         log.warning("skipped: %s", line)
-    source = None
-    if settings.network or settings.model_uri:
-        source = settings.model_uri or project_path(cfg.paths.data) / "models" / f"{settings.network}.pt"
+    source = network_source(project_path(cfg.paths.data), settings.network, settings.model_uri)
     box = cfg.holes.sup.get("box")
     with stage_run(tracking, f"schedule-{plan_path.stem}-{rig.name}",
                    {"stage": "schedule", "plan": str(plan_path), "rig": rig.name}) as mlrun:
@@ -120,12 +117,7 @@ def run(cfg: DictConfig) -> dict:
                           "round": as_dict(cfg.round), "solver": as_dict(cfg.solver)})
         mlrun.log_dataset(plan.holes, plan_path, "drill plan")
 
-        def first_start(boom):
-            if source is None:
-                return None
-            return NetworkSolver(boom, load_network(source, boom, tracking.uri, "schedule.model_uri")[0],
-                                 settings.network or "model")
-
+        first_start = first_starts(source, settings.network, tracking.uri, "schedule.model_uri")
         say, close = _progress(runtime.progress)
         try:
             solvers = rig_solvers(rig, first_start, hybrid,
@@ -190,15 +182,9 @@ def run_benchmark(cfg: DictConfig, settings: ScheduleSettings) -> dict:
     tracking = TrackingSettings.from_config(cfg.tracking)
     folder = require_writable(project_path(cfg.paths.data) / "benchmark", "paths.data/benchmark")
     (folder / "rounds").mkdir(exist_ok=True)
-    source = None
-    if settings.network or settings.model_uri:
-        source = settings.model_uri or project_path(cfg.paths.data) / "models" / f"{settings.network}.pt"
+    source = network_source(project_path(cfg.paths.data), settings.network, settings.model_uri)
 
-    def first_start(boom):
-        if source is None:
-            return None
-        return NetworkSolver(boom, load_network(source, boom, tracking.uri, "schedule.model_uri")[0],
-                             settings.network or "model")
+    first_start = first_starts(source, settings.network, tracking.uri, "schedule.model_uri")
 
     with stage_run(tracking, "schedule-benchmark", {"stage": "schedule", "mode": "benchmark"}) as mlrun:
         mlrun.log_params({"schedule": asdict(settings), "round": as_dict(cfg.round), "solver": as_dict(cfg.solver)})

@@ -53,6 +53,7 @@ from pipeline.plans.read import MAX_PLAN_MB, read_plan
 from pipeline.plans.solutions import CLEARANCE_COLUMNS, solution_frame, status_counts
 from pipeline.solvers.base import NetworkSolver
 from pipeline.solvers.hybrid import HybridSettings, HybridSolver
+from pipeline.solvers.network_start import first_starts, network_source
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
@@ -107,7 +108,7 @@ def run(cfg: DictConfig) -> dict:
     safety = build_safety(boom, cfg.tunnel, cfg.safety)
     iredes = asdict(settings.iredes) if plan_path.suffix.lower() == ".xml" else {}
     plan = read_plan(plan_path, settings.max_plan_mb, **iredes)  # a bad plan fails before the network loads
-    source = settings.model_uri or project_path(cfg.paths.data) / "models" / f"{settings.network}.pt"
+    source = network_source(project_path(cfg.paths.data), settings.network, settings.model_uri)
     network, _ = load_network(source, boom, tracking.uri, "solve.model_uri")
     for line in plan.report():
         log.warning("skipped: %s", line)
@@ -149,7 +150,7 @@ def solve_rig(cfg: DictConfig, rig, settings: SolveSettings, hybrid: HybridSetti
               strict: bool) -> dict:
     """Every hole by every boom of ``rig``, the others at park: the reach table, its JSON and figure,
     published as one set like a single boom's solution."""
-    source = settings.model_uri or project_path(cfg.paths.data) / "models" / f"{settings.network}.pt"
+    source = network_source(project_path(cfg.paths.data), settings.network, settings.model_uri)
     plan = read_plan(plan_path, settings.max_plan_mb,
                      **(asdict(settings.iredes) if plan_path.suffix.lower() == ".xml" else {}))
     out = paths.csv
@@ -163,9 +164,7 @@ def solve_rig(cfg: DictConfig, rig, settings: SolveSettings, hybrid: HybridSetti
         mlrun.log_params({"plan": str(plan_path), "rig": rig.name, "solve": as_dict(cfg.solve),
                           "solver": as_dict(cfg.solver), "boom_model": str(cfg.get("boom_model")),
                           "boom_models": str(cfg.get("boom_models")), "plan_checksum": plan.checksum})
-        def network(boom):  # each boom's first start, checked against its config
-            return NetworkSolver(boom, load_network(source, boom, tracking.uri, "solve.model_uri")[0], settings.network)
-
+        network = first_starts(source, settings.network, tracking.uri, "solve.model_uri")  # per boom, checked
         solvers = rig_solvers(rig, network, hybrid, joint_box(rig.booms[0].boom, None if box is None else as_dict(box)))
         reach = reach_table(plan, rig, solvers, method)
         summary = {"rig": rig.name, "booms": rig.names, "invalid_rows": invalid_rows(plan), **reach.summary()}
