@@ -55,7 +55,8 @@ class BoomModel:
         self.joint_names = [str(j["name"]) for j in node["joints"]]
         self.joint_row = np.array([int(j["row"]) - 1 for j in node["joints"]])  # 0-based D-H row
         self.revolute = np.array([j["param"] == "theta" for j in node["joints"]])
-        if not set(p["param"] for p in node["joints"]) <= {"theta", "d"} or not ((0 <= self.joint_row) & (self.joint_row < n)).all():
+        rows_ok = ((0 <= self.joint_row) & (self.joint_row < n)).all()
+        if not set(p["param"] for p in node["joints"]) <= {"theta", "d"} or not rows_ok:
             raise InputError(f"{self.where}: a joint's param must be theta or d, its row within the {n} D-H rows")
         unit = np.where(self.revolute, ang, lng)
         self.lo = np.array([float(j["range"][0]) for j in node["joints"]]) * unit
@@ -74,7 +75,8 @@ class BoomModel:
         for end in ("start", "end"):
             f = node[end]["frame"]
             frames.append(self.n_rows if f == "tool" else int(f))
-            off = (self.tool if f == "tool" else np.zeros(3)) + np.array([0.0, 0.0, float(node[end].get("along_z", 0.0)) * lng])
+            along = np.array([0.0, 0.0, float(node[end].get("along_z", 0.0)) * lng])
+            off = (self.tool if f == "tool" else np.zeros(3)) + along
             offsets.append(off)
         if not all(0 <= f <= self.n_rows for f in frames):
             raise InputError(f"{self.where}: body {name}: frame outside 0..{self.n_rows}")

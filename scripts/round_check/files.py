@@ -81,7 +81,8 @@ def read_trajectory(path: Path, booms: dict[str, list[str]]) -> dict[str, BoomRo
     bad = ~np.isin(event, sorted(EVENTS))
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        raise InputError(f"{path}: boom {name.iloc[i]!r}, row {i + 2}: event {event[i]!r} is not one of {sorted(EVENTS)}")
+        raise InputError(f"{path}: boom {name.iloc[i]!r}, row {i + 2}: event {event[i]!r} is not one of "
+                         f"{sorted(EVENTS)}")
     nameless = np.isin(event, HOLE_EVENTS) & (hole == "")
     if nameless.any():
         i = int(np.flatnonzero(nameless)[0])

@@ -83,14 +83,16 @@ def speeds(boom: RigBoom, r: BoomRows, ctx: Context) -> tuple[list[str], float]:
 def park(boom: RigBoom, r: BoomRows, holes_given: int) -> list[str]:
     msgs = []
     if abs(r.t[0]) > TIME_TOL:
-        msgs.append(f"boom {boom.name}: does not start at t = 0 (its first row, row {r.line[0]}, is at t={r.t[0]:.6f} s)")
+        msgs.append(f"boom {boom.name}: does not start at t = 0 (its first row, row {r.line[0]}, is at "
+                    f"t={r.t[0]:.6f} s)")
     for k, where in ((0, "start"), (-1, "end")):
         off = np.abs(_wrap(r.q[k], boom) - _wrap(boom.park, boom))
         off = np.where(boom.model.full_turn, np.minimum(off, TURN - off), off)
         if (off > PARK_TOL).any():
             j = int(off.argmax())
             msgs.append(f"boom {boom.name}, t={r.t[k]:.3f} s: does not {where} at its park (row {r.line[k]}: "
-                        f"{boom.model.joint_names[j]} = {_fmt(j, r.q[k, j], boom)}, park {_fmt(j, boom.park[j], boom)})")
+                        f"{boom.model.joint_names[j]} = {_fmt(j, r.q[k, j], boom)}, "
+                        f"park {_fmt(j, boom.park[j], boom)})")
     if holes_given and np.abs(r.q - r.q[0]).max() <= HOLD_TOL:
         msgs.append(f"boom {boom.name}: never leaves park, though the round table gives it {holes_given} hole(s)")
     return msgs
@@ -126,8 +128,8 @@ def holes(st: Settings, rows: dict[str, BoomRows], table: pd.DataFrame, plan: Pl
         seq_ok = ((r.event[ks + 1] == "drill") & (r.event[ks + 2] == "retract") & (r.hole[ks + 1] == r.hole[ks])
                   & (r.hole[ks + 2] == r.hole[ks]))
         for k in ks[~seq_ok]:
-            msgs.append(f"boom {name}, t={r.t[k]:.3f} s, hole {r.hole[k]}: collar row (row {r.line[k]}) not followed by "
-                        "this hole's drill and retract rows")
+            msgs.append(f"boom {name}, t={r.t[k]:.3f} s, hole {r.hole[k]}: collar row (row {r.line[k]}) "
+                        "not followed by this hole's drill and retract rows")
         ks = ks[seq_ok]
         paired = np.zeros(len(r.t), bool)
         paired[np.concatenate([ks, ks + 1, ks + 2])] = True
@@ -140,8 +142,8 @@ def holes(st: Settings, rows: dict[str, BoomRows], table: pd.DataFrame, plan: Pl
         # held still from the collar row to the end of retraction
         span = np.stack([np.abs(r.q[ks + i] - r.q[ks]).max(1) for i in (1, 2, 3)], 1).max(1) if len(ks) else np.zeros(0)
         for k, moved in zip(ks[span > HOLD_TOL], span[span > HOLD_TOL], strict=True):
-            msgs.append(f"boom {name}, t={r.t[k]:.3f} s, hole {r.hole[k]}: joints move between the collar row and the end "
-                        f"of retraction (rows {r.line[k]}-{r.line[k + 3]}, by up to {moved:.3g})")
+            msgs.append(f"boom {name}, t={r.t[k]:.3f} s, hole {r.hole[k]}: joints move between the collar row "
+                        f"and the end of retraction (rows {r.line[k]}-{r.line[k + 3]}, by up to {moved:.3g})")
         # spec time, part by part
         pi = np.array([where.get(h, -1) for h in ids], dtype=np.int64)
         known = pi >= 0
@@ -167,9 +169,10 @@ def holes(st: Settings, rows: dict[str, BoomRows], table: pd.DataFrame, plan: Pl
             a_err[ok] = np.arctan2(np.linalg.norm(np.cross(z[ok], u), axis=1), np.einsum("ij,ij->i", z[ok], u))
             for i in np.flatnonzero(ok & ((c_err > collar_tol_m) | (a_err > angle_tol_rad))):
                 k = ks[i]
-                msgs.append(f"boom {name}, t={r.t[k]:.3f} s, hole {r.hole[k]}: drilled at joints that put the drill end "
-                            f"{c_err[i] * 1e3:.4f} mm from its collar and the feed {math.degrees(a_err[i]):.5f} deg off "
-                            f"its direction (tolerance {collar_tol_m * 1e3:g} mm, {math.degrees(angle_tol_rad):.5f} deg)")
+                msgs.append(f"boom {name}, t={r.t[k]:.3f} s, hole {r.hole[k]}: drilled at joints that put the drill "
+                            f"end {c_err[i] * 1e3:.4f} mm from its collar and the feed "
+                            f"{math.degrees(a_err[i]):.5f} deg off its direction (tolerance "
+                            f"{collar_tol_m * 1e3:g} mm, {math.degrees(angle_tol_rad):.5f} deg)")
             for i in np.flatnonzero(~ok):
                 k = ks[i]
                 msgs.append(f"boom {name}, t={r.t[k]:.3f} s, hole {r.hole[k]}: drilled, but the plan has no readable "
@@ -211,8 +214,8 @@ def holes(st: Settings, rows: dict[str, BoomRows], table: pd.DataFrame, plan: Pl
     for h in table["hole_id"]:
         if h not in where:
             msgs.append(f"hole {h}: in the round table but not in the plan")
-    stats["_holes"] = {"plan": len(plan.ids), "drilled": len(drilled),
-                       "reported_not_drilled": int(sum(1 for h in plan.ids if status.get(h) in ("unreachable", "invalid")))}
+    reported = sum(1 for h in plan.ids if status.get(h) in ("unreachable", "invalid"))
+    stats["_holes"] = {"plan": len(plan.ids), "drilled": len(drilled), "reported_not_drilled": int(reported)}
     return msgs, stats
 
 

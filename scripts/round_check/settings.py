@@ -96,7 +96,8 @@ def settings(overrides: list[str]) -> Settings:
             models[kind] = BoomModel(node, src)
         m = models[kind]
         base, park = np.asarray(b.get("base", []), float), np.asarray(b.get("park", []), float)
-        if base.shape != (3,) or park.shape != (len(m.joint_names),) or not (np.isfinite(base).all() and np.isfinite(park).all()):
+        finite = np.isfinite(base).all() and np.isfinite(park).all()
+        if base.shape != (3,) or park.shape != (len(m.joint_names),) or not finite:
             raise InputError(f"settings: {where} ({b.get('name')}): base needs 3 numbers, park {len(m.joint_names)}")
         missing = [j for j in m.joint_names if j not in speeds]
         if missing:

@@ -50,7 +50,8 @@ class Result:
 class Sweep:
     def __init__(self, st: Settings, rows: dict[str, BoomRows], spacing: float, levels: int = 4, split: int = 8,
                  chunk: int = 20000, refine_cap: int = 2_000_000):
-        self.st, self.spacing, self.levels, self.split, self.chunk, self.cap = st, spacing, levels, split, chunk, refine_cap
+        self.st, self.spacing, self.levels, self.split = st, spacing, levels, split
+        self.chunk, self.cap = chunk, refine_cap
         self.rows = [rows[b.name] for b in st.booms]
         self.lever = [b.model.lever(b.model.d_extent(r.q)) for b, r in zip(st.booms, self.rows, strict=True)]
         self.keys: list[Key] = []
@@ -63,7 +64,8 @@ class Sweep:
                 for s in SURFACES:
                     idx.append(len(self.keys))
                     self.keys.append(Key("tunnel", (bi,), ki, s))
-                self.tunnel_groups.append((np.array(idx), np.array([body.radius + st.safety[s] for s in SURFACES]), bi, ki))
+                offsets = np.array([body.radius + st.safety[s] for s in SURFACES])
+                self.tunnel_groups.append((np.array(idx), offsets, bi, ki))
         self.pairs = list(combinations(range(len(st.booms)), 2))
         for a, b in self.pairs:
             self.keys.append(Key("boom", (a, b)))
@@ -93,8 +95,9 @@ class Sweep:
             P = m.body_points(m.frames(q)) + b.base
             pts.append(P)
             if m.self_pairs:
-                cols.append(np.min([segment_distance(P[:, i, 0], P[:, i, 1], P[:, j, 0], P[:, j, 1])
-                                    - m.bodies[i].radius - m.bodies[j].radius for i, j in m.self_pairs], 0) - st.safety["self"])
+                gaps = [segment_distance(P[:, i, 0], P[:, i, 1], P[:, j, 0], P[:, j, 1])
+                        - m.bodies[i].radius - m.bodies[j].radius for i, j in m.self_pairs]
+                cols.append(np.min(gaps, 0) - st.safety["self"])
             for ki, body in enumerate(m.bodies):
                 s0, s1 = P[:, ki, 0], P[:, ki, 1]
                 if body.skip_end > 0:  # the front of the feed works at the face: its checked part ends short
@@ -112,7 +115,8 @@ class Sweep:
     def travel(self, t0: np.ndarray, t1: np.ndarray) -> np.ndarray:
         """``(n, K)``: a bound of how far the points a key involves move over [t0, t1] (inside one row
         interval of every boom, so joints move linearly there)."""
-        per = [np.abs(q1 - q0) @ lev.T for q0, q1, lev in zip(self.states(t0), self.states(t1), self.lever, strict=True)]
+        per = [np.abs(q1 - q0) @ lev.T
+               for q0, q1, lev in zip(self.states(t0), self.states(t1), self.lever, strict=True)]
         cols = []
         for bi, b in enumerate(self.st.booms):
             if b.model.self_pairs:
