@@ -16,10 +16,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # round_check/, beside this file
 
+from round_check import boom, distance, files, settings, sweep  # noqa: E402
 from round_check.cli import check, main  # noqa: E402
 from round_check.errors import InputError  # noqa: E402
 
-__all__ = ["InputError", "check", "main"]
+__all__ = ["InputError", "boom", "check", "distance", "files", "main", "settings", "sweep"]
 
 if __name__ == "__main__":
     sys.exit(main())

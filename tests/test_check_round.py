@@ -29,9 +29,7 @@ def _load():
 
 
 cr = _load()
-from round_check import distance as rc_distance  # noqa: E402  (on sys.path once the script is loaded)
-from round_check.settings import settings as rc_settings  # noqa: E402
-from round_check.sweep import Sweep  # noqa: E402
+rc_distance, rc_settings, Sweep = cr.distance, cr.settings.settings, cr.sweep.Sweep  # the checker's own modules
 
 
 @pytest.fixture(scope="module")
@@ -467,10 +465,8 @@ def test_certified_floor_lies_under_a_dense_resampling(good):
     """Around the least sampled clearance of each kind, a 50x denser sweep finds nothing below the
     certified floor."""
     tmp, overrides = good
-    from round_check.files import read_trajectory
-
     st = rc_settings(overrides)
-    rows = read_trajectory(tmp / "small_trajectory.csv", {b.name: b.model.joint_names for b in st.booms})
+    rows = cr.files.read_trajectory(tmp / "small_trajectory.csv", {b.name: b.model.joint_names for b in st.booms})
     sw = Sweep(st, rows, 0.005)
     res = sw.run()
     for k in range(len(sw.keys)):
