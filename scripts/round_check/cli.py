@@ -19,7 +19,8 @@ from .settings import CONF_DIR, settings
 from .sweep import Sweep
 
 USAGE = """python scripts/check_round.py <stem>_trajectory.csv [hydra overrides, as the stage's: rig=twin ...]
-        [--round F] [--summary F] [--plan F] [--spacing-m 0.005] [--collar-tol-mm 0.1] [--angle-tol-deg A]"""
+        [--round F] [--summary F] [--plan F] [--spacing-m 0.005] [--collar-tol-mm 0.1] [--angle-tol-deg A]
+        [--levels 4] [--trajectory-only]"""
 
 
 def _siblings(trajectory: Path, round_csv, summary, plan):
@@ -112,8 +113,12 @@ def _messages(sw: Sweep, res, st, ctx) -> tuple[list[str], list[str]]:
 
 
 def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spacing_m: float = 0.005,
-          collar_tol_mm: float = 0.1, angle_tol_deg: float | None = None, levels: int = 4) -> dict:
-    """Check one round's files; returns the report (raises :class:`InputError` on input it cannot judge)."""
+          collar_tol_mm: float = 0.1, angle_tol_deg: float | None = None, levels: int = 4,
+          trajectory_only: bool = False) -> dict:
+    """Check one round's files; returns the report (raises :class:`InputError` on input it cannot judge).
+
+    ``trajectory_only``: the motion alone (clearances, limits, speeds, park, the planner's flags), for a
+    trajectory file without its round table, JSON and plan; no hole and no makespan is checked."""
     for name, v in (("--spacing-m", spacing_m), ("--collar-tol-mm", collar_tol_mm)) + (
             (("--angle-tol-deg", angle_tol_deg),) if angle_tol_deg is not None else ()):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -123,8 +128,11 @@ def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spa
     trajectory = Path(trajectory)
     if not trajectory.is_file():
         raise InputError(f"{trajectory}: no such trajectory file")
-    round_csv, summary_path, plan = _siblings(trajectory, round_csv, summary, plan)
     st = settings(list(overrides))
+    if trajectory_only:
+        return _motion(st, trajectory, spacing_m, levels, None, {"checked": "trajectory only: no hole, round "
+                                                                            "table or makespan check"})
+    round_csv, summary_path, plan = _siblings(trajectory, round_csv, summary, plan)
     doc = read_summary(summary_path)
     if doc.get("rig") not in (None, st.rig):
         raise InputError(f"{summary_path}: the round was planned for rig {doc['rig']!r}, the settings compose rig "
@@ -138,9 +146,26 @@ def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spa
     # the matching angle: the direction error that moves the preview point (paper 000 eq. 3) by the collar tolerance
     angle_tol = math.radians(angle_tol_deg) if angle_tol_deg is not None else collar_tol / depth
 
+    given = table[table["status"] == "ok"]["boom"].value_counts().to_dict()
+    report = _motion(st, trajectory, spacing_m, levels, given, {}, rows)
+    msgs, hole_stats = rules.holes(st, rows, table, holes_plan, collar_tol, angle_tol)
+    for b in st.booms:
+        report["booms"][b.name].update(hole_stats.get(b.name, {}))
+    mk, _ = rules.makespan(rows, doc, summary_path)
+    report["violations"] = msgs + mk + report["violations"]
+    report.update({"round": str(round_csv), "summary": str(summary_path), "plan": str(plan_path),
+                   "collar_tol_mm": collar_tol_mm, "angle_tol_deg": math.degrees(angle_tol),
+                   "json_makespan_s": float(doc["makespan_s"]), "holes": hole_stats["_holes"]})
+    return report
+
+
+def _motion(st, trajectory, spacing_m, levels, given, head, rows=None) -> dict:
+    """The checks of the motion itself: park, limits, speeds, the planner's flags, certified clearances."""
+    if rows is None:
+        rows = read_trajectory(trajectory, {b.name: b.model.joint_names for b in st.booms})
+    given = given or {}
     ctx = {b.name: rules.Context(rows[b.name]) for b in st.booms}
     violations, booms_out = [], {}
-    given = table[table["status"] == "ok"]["boom"].value_counts().to_dict()
     for b in st.booms:
         r = rows[b.name]
         violations += rules.park(b, r, int(given.get(b.name, 0)))
@@ -149,11 +174,6 @@ def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spa
         violations += msgs
         violations += rules.unclear_moves(b, r, ctx[b.name])
         booms_out[b.name] = {"rows": int(len(r.t)), "end_s": float(r.t[-1]), "speed_ratio_max": ratio}
-    msgs, hole_stats = rules.holes(st, rows, table, holes_plan, collar_tol, angle_tol)
-    violations += msgs
-    msgs, last = rules.makespan(rows, doc, summary_path)
-    violations += msgs
-
     sw = Sweep(st, rows, spacing_m, levels=levels)
     res = sw.run()
     clear, pairs = _report_clearances(sw, res, st)
@@ -161,16 +181,12 @@ def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spa
     violations += sampled
     for b in st.booms:
         booms_out[b.name].update(clear[b.name])
-        booms_out[b.name].update(hole_stats.get(b.name, {}))
     return {
-        "trajectory": str(trajectory), "round": str(round_csv), "summary": str(summary_path), "plan": str(plan_path),
-        "rig": st.rig, "d_boom_m": st.d_boom, "safety_m": st.safety,
+        "trajectory": str(trajectory), **head, "rig": st.rig, "d_boom_m": st.d_boom, "safety_m": st.safety,
         "convention": "clearance = distance - radii - safety distance (boom-boom: distance - radii, against d_boom); "
                       ">= 0 passes",
         "spacing_m": spacing_m, "instants": res.instants, "refined_instants": res.refined,
-        "collar_tol_mm": collar_tol_mm, "angle_tol_deg": math.degrees(angle_tol),
-        "makespan_s": last, "json_makespan_s": float(doc["makespan_s"]),
-        "holes": hole_stats["_holes"], "booms": booms_out, "pairs": pairs,
+        "makespan_s": max(float(r.t[-1]) for r in rows.values()), "booms": booms_out, "pairs": pairs,
         "min_boom_distance_m": min((p["distance_m"]["sampled"] for p in pairs.values()), default=None),
         "min_boom_distance_certified_m": min((p["distance_m"]["certified"] for p in pairs.values()), default=None),
         "violations": violations, "not_certified": unclear,
@@ -194,6 +210,8 @@ def main(argv=None) -> int:
     ap.add_argument("--collar-tol-mm", type=float, default=0.1)
     ap.add_argument("--angle-tol-deg", type=float, default=None, help="default: collar tolerance / preview depth")
     ap.add_argument("--levels", type=int, default=4, help="refinements (x8 each) of an interval not yet certified")
+    ap.add_argument("--trajectory-only", action="store_true",
+                    help="the motion alone (no round table, JSON or plan): no hole and no makespan check")
     args = ap.parse_intermixed_args(argv)
     bad = [o for o in args.overrides if "=" not in o]
     if bad:
@@ -201,7 +219,7 @@ def main(argv=None) -> int:
         return 2
     try:
         out = check(args.trajectory, args.overrides, args.round_csv, args.summary, args.plan, args.spacing_m,
-                    args.collar_tol_mm, args.angle_tol_deg, args.levels)
+                    args.collar_tol_mm, args.angle_tol_deg, args.levels, args.trajectory_only)
     except InputError as e:
         print(f"check_round: {e}", file=sys.stderr)
         return 2
