@@ -455,6 +455,12 @@ def test_tunnel_distance_over_a_segment_against_dense_points():
         slack = np.linalg.norm(p1[:, 1:] - p0[:, 1:], axis=1) / 200 + 2 * math.pi * r / 2000
         assert (exact[:, k] <= brute + 1e-9).all(), s
         assert (exact[:, k] >= brute - slack).all(), s
+    # by hand: the least distance to the wall's top end (above the springing line) and to the arch's end
+    # (below it) both lie inside the segment, where no end point sees them
+    ends = np.array([[0, 1.5, 3.0], [0, 2.3, 2.0]]), np.array([[0, 2.3, 3.8], [0, 1.9, 3.1]])
+    hand = rc_distance.segment_tunnel(*ends, r, h)
+    assert hand[0, 0] == pytest.approx(0.4 * math.sqrt(2), abs=1e-12)
+    assert hand[1, 2] == pytest.approx(0.70 / math.sqrt(1.37), abs=1e-12)
     # outside: negative beyond the surface crossed
     out = rc_distance.point_distances(np.array([2.7, 0.0, 0.0]), np.array([1.0, -0.2, 5.9]), r, h)
     assert out["wall"][0] == pytest.approx(-0.2) and out["ground"][1] == pytest.approx(-0.2)
