@@ -43,8 +43,10 @@ def _plan_path(summary: dict, path: Path, plan) -> Path:
 
 
 def _minima(values: np.ndarray, mask) -> float | None:
+    """The least value, or None where there is none or no floor could be claimed (-inf: a body sampled
+    outside the profile, a violation reported on its own)."""
     v = values[mask]
-    return float(v.min()) if v.size else None
+    return float(v.min()) if v.size and np.isfinite(v.min()) else None
 
 
 def _report_clearances(sw: Sweep, res, st) -> tuple[dict, dict]:
@@ -65,7 +67,7 @@ def _report_clearances(sw: Sweep, res, st) -> tuple[dict, dict]:
         if k.kind == "boom":
             a, c = (st.booms[i].name for i in k.booms)
             pairs[f"{a}-{c}"] = {"distance_m": {"sampled": float(res.sampled[ki] + st.d_boom),
-                                                "certified": float(res.certified[ki] + st.d_boom)},
+                                                "certified": _minima(res.certified + st.d_boom, ki)},
                                  "at_s": float(res.sampled_at[ki])}
     return booms, pairs
 
@@ -188,7 +190,8 @@ def _motion(st, trajectory, spacing_m, levels, given, head, rows=None) -> dict:
         "spacing_m": spacing_m, "instants": res.instants, "refined_instants": res.refined,
         "makespan_s": max(float(r.t[-1]) for r in rows.values()), "booms": booms_out, "pairs": pairs,
         "min_boom_distance_m": min((p["distance_m"]["sampled"] for p in pairs.values()), default=None),
-        "min_boom_distance_certified_m": min((p["distance_m"]["certified"] for p in pairs.values()), default=None),
+        "min_boom_distance_certified_m": min((p["distance_m"]["certified"] for p in pairs.values()
+                                              if p["distance_m"]["certified"] is not None), default=None),
         "violations": violations, "not_certified": unclear,
     }
 

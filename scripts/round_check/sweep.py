@@ -127,13 +127,19 @@ class Sweep:
             cols.append(per[a].max(1) + per[c].max(1))
         return np.stack(cols, -1)
 
-    def floors(self, t0, t1, c0, c1) -> np.ndarray:
+    def floors(self, t0, t1, c0, c1) -> tuple[np.ndarray, np.ndarray]:
+        """Floors ``(n, K)`` and where one is short of 0 though the samples are not (to refine)."""
         tau = self.travel(t0, t1)
         f = np.minimum(np.minimum(c0, c1), 0.5 * (c0 + c1 - tau))
+        short = (f < 0) & (c0 >= 0) & (c1 >= 0)
         for idx, off, _, _ in self.tunnel_groups:
             inside = np.minimum((c0[:, idx] + off).min(1), (c1[:, idx] + off).min(1)) >= tau[:, idx[0]]
             f[np.ix_(~inside, idx)] = -np.inf  # the body may leave the profile: no Lipschitz floor
-        return f
+            # a body already sampled below one surface's clearance is a violation there: its other
+            # surfaces get no floor, and refining them would not change the verdict
+            broken = ((c0[:, idx] < 0) | (c1[:, idx] < 0)).any(1)
+            short[np.ix_(broken, idx)] = False
+        return f, short
 
     # -- the sweep ---------------------------------------------------------------------------------
     def run(self) -> Result:
@@ -161,6 +167,7 @@ class Sweep:
                 res.runs.append((int(k), float(t[a]), float(t[b - 1]), float(t[w]), float(c[w, k])))
 
     def _chunk(self, t: np.ndarray, res: Result) -> None:
+        K = len(self.keys)
         c = self.measure(t)
         self._sampled(t, c, res)
         self._runs(t, c, res)
@@ -169,8 +176,7 @@ class Sweep:
             return
         t0, t1, c0, c1 = t[:-1], t[1:], c[:-1], c[1:]
         for level in range(self.levels + 1):
-            f = self.floors(t0, t1, c0, c1)
-            short = (f < 0) & (c0 >= 0) & (c1 >= 0)
+            f, short = self.floors(t0, t1, c0, c1)
             sub = short.any(1)
             last = level == self.levels or sub.sum() * (self.split + 1) > self.cap
             if last:
@@ -189,8 +195,10 @@ class Sweep:
             ci = self.measure(inner.ravel()).reshape(*inner.shape, -1)
             res.refined += inner.size
             self._sampled(inner.ravel(), ci.reshape(-1, ci.shape[-1]), res)
-            for row in np.flatnonzero((ci < 0).any((1, 2))):  # only intervals with a sample below (rare)
-                self._runs(inner[row], ci[row], res)
+            # stretches within each refined interval: pad every interval so that none runs into the next
+            pad_c = np.concatenate([np.full((len(a), 1, K), np.inf), ci], 1).reshape(-1, K)
+            pad_t = np.concatenate([a[:, None], inner], 1).ravel()
+            self._runs(pad_t, pad_c, res)
             full = np.concatenate([c0[sub][:, None], ci, c1[sub][:, None]], 1)
             t0, t1 = tt[:, :-1].ravel(), tt[:, 1:].ravel()
             c0, c1 = full[:, :-1].reshape(-1, full.shape[-1]), full[:, 1:].reshape(-1, full.shape[-1])
