@@ -1,9 +1,8 @@
 """Stage schedule (issue 20): the round of rig twin on a small face of the demo plan, checked from the files.
 
-The checker is independent of the planner: it reads the trajectory file, interpolates it linearly every
-5 ms (the file's own rule), builds frames with the boom's own forward kinematics plus each base from the
-rig config, and recomputes boom-boom distances with BoomPair and self/tunnel clearances with each
-boom's SafetyModel. Drilling times are the spec's formula by hand.
+The checker (scripts/check_round.py, tests/test_check_round.py) shares no code with the planner: it
+reads the round's files with the stage's composed settings and judges them with its own kinematics,
+distances and certified sweep. Drilling times are the spec's formula by hand.
 """
 
 import json
@@ -95,14 +94,15 @@ def _script(name):
 
 
 def test_independent_checker_on_the_trajectory_file(small_round):
-    """scripts/check_round.py (the file alone, every 5 ms, each boom's own kinematics and base from the
-    rig file, BoomPair, SafetyModel): boom-boom >= d_boom, self and tunnel >= 0, joint speeds kept."""
+    """scripts/check_round.py with the stage's own overrides: every hole drilled at its joints for its
+    time, boom-boom >= d_boom, self and tunnel clear (certified), joint speeds and limits kept."""
     tmp, _, summary, _ = small_round
-    out = _script("check_round").check(tmp / "small_trajectory.csv", "twin", 0.005)
-    assert not out["violations"], out["violations"]
-    assert out["min_boom_distance_m"] >= 0.3 and summary["min_boom_clearance_m"] >= 0.3
+    stage = ["experiment=tiny", f"paths.data={tmp}/data", *FAST, f"plan={tmp / 'small.csv'}"]
+    out = _script("check_round").check(tmp / "small_trajectory.csv", stage)
+    assert not out["violations"] and not out["not_certified"], out["violations"] + out["not_certified"]
+    assert out["min_boom_distance_certified_m"] >= 0.3 and summary["min_boom_clearance_m"] >= 0.3
     assert out["min_boom_distance_m"] < 0.3 + 1.0  # the booms come close on this face: not vacuous
-    assert set(out["booms"]) == {"L", "R"} and out["samples"] > 1000
+    assert set(out["booms"]) == {"L", "R"} and out["instants"] > 1000
     assert summary["moves"]["failed"] == len(summary["moves_not_clear"]) == 0
 
 

@@ -1,0 +1,10 @@
+"""The independent round checker (``python scripts/check_round.py``): a round's files judged with code
+of its own (numpy forward kinematics from the boom YAML, its own segment and tunnel distances, a
+certified time sweep), sharing nothing with ``pipeline`` but the composed settings (Hydra).
+
+Modules, one job each: :mod:`.errors` (input errors, exit 2), :mod:`.boom` (a boom from its YAML:
+kinematics, bodies, lever-arm bounds), :mod:`.distance` (segment-segment and horseshoe distances),
+:mod:`.settings` (the rig, tunnel, safety and motion from the composed config), :mod:`.files` (reading
+and validating the trajectory, round table, round JSON and plan), :mod:`.sweep` (certified clearances
+over time), :mod:`.rules` (row checks: limits, speeds, park, holes, makespan), :mod:`.cli` (the command).
+"""

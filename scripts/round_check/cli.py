@@ -1,0 +1,230 @@
+"""The command: read, check, print one JSON object; exit 0 clean, 1 violations (or a clearance that
+cannot be certified), 2 an input that cannot be judged."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from . import rules
+from .distance import SURFACES
+from .errors import InputError
+from .files import read_plan, read_round_table, read_summary, read_trajectory
+from .settings import CONF_DIR, settings
+from .sweep import Sweep
+
+USAGE = """python scripts/check_round.py <stem>_trajectory.csv [hydra overrides, as the stage's: rig=twin ...]
+        [--round F] [--summary F] [--plan F] [--spacing-m 0.005] [--collar-tol-mm 0.1] [--angle-tol-deg A]
+        [--levels 4] [--trajectory-only]"""
+
+
+def _siblings(trajectory: Path, round_csv, summary, plan):
+    stem = trajectory.name[: -len("_trajectory.csv")] if trajectory.name.endswith("_trajectory.csv") else None
+    if stem is None and (round_csv is None or summary is None):
+        raise InputError(f"{trajectory}: not named <stem>_trajectory.csv: give --round and --summary")
+    round_csv = Path(round_csv) if round_csv else trajectory.with_name(f"{stem}_round.csv")
+    summary = Path(summary) if summary else trajectory.with_name(f"{stem}_round.json")
+    return round_csv, summary, plan
+
+
+def _plan_path(summary: dict, path: Path, plan) -> Path:
+    if plan:
+        return Path(plan)
+    p = summary.get("plan")
+    if not isinstance(p, str) or not p:
+        raise InputError(f"{path}: no `plan` field naming the drill plan: give --plan")
+    p = Path(p)
+    return p if p.is_absolute() else CONF_DIR.parent / p  # the stage resolves a relative plan in the checkout
+
+
+def _minima(values: np.ndarray, mask) -> float | None:
+    """The least value, or None where there is none or no floor could be claimed (-inf: a body sampled
+    outside the profile, a violation reported on its own)."""
+    v = values[mask]
+    return float(v.min()) if v.size and np.isfinite(v.min()) else None
+
+
+def _report_clearances(sw: Sweep, res, st) -> tuple[dict, dict]:
+    keys = sw.keys
+    booms, pairs = {}, {}
+    for bi, b in enumerate(st.booms):
+        own = {}
+        sel = np.array([k.kind == "self" and k.booms == (bi,) for k in keys])
+        if sel.any():
+            own["self_m"] = {"sampled": _minima(res.sampled, sel), "certified": _minima(res.certified, sel)}
+        tun = {}
+        for s in SURFACES:
+            sel = np.array([k.kind == "tunnel" and k.booms == (bi,) and k.surface == s for k in keys])
+            tun[s] = {"sampled": _minima(res.sampled, sel), "certified": _minima(res.certified, sel)}
+        own["tunnel_m"] = tun
+        booms[b.name] = own
+    for ki, k in enumerate(keys):
+        if k.kind == "boom":
+            a, c = (st.booms[i].name for i in k.booms)
+            pairs[f"{a}-{c}"] = {"distance_m": {"sampled": float(res.sampled[ki] + st.d_boom),
+                                                "certified": _minima(res.certified + st.d_boom, ki)},
+                                 "at_s": float(res.sampled_at[ki])}
+    return booms, pairs
+
+
+def _describe(k, st) -> str:
+    if k.kind == "self":
+        return f"boom {st.booms[k.booms[0]].name}", "self clearance"
+    if k.kind == "tunnel":
+        b = st.booms[k.booms[0]]
+        return f"boom {b.name}", f"{k.surface} clearance of the {b.model.bodies[k.body].name}"
+    a, c = (st.booms[i].name for i in k.booms)
+    return f"booms {a} and {c}", "boom-boom clearance (distance - d_boom)"
+
+
+def _messages(sw: Sweep, res, st, ctx) -> tuple[list[str], list[str]]:
+    # stretches cut by chunk edges share the edge instant: join them
+    runs = sorted(res.runs)
+    joined = []
+    for r in runs:
+        if joined and joined[-1][0] == r[0] and r[1] <= joined[-1][2]:
+            p = joined[-1]
+            worse = r if r[4] < p[4] else p
+            joined[-1] = (p[0], p[1], max(p[2], r[2]), worse[3], worse[4])
+        else:
+            joined.append(r)
+    viol, count = [], {}
+    for k, t0, t1, tw, worst in joined:
+        count[k] = count.get(k, 0) + 1
+        if count[k] > rules.MAX_PER_CHECK:
+            continue
+        who, what = _describe(sw.keys[k], st)
+        where = "; ".join(f"boom {st.booms[i].name} {ctx[st.booms[i].name].at(tw)}" for i in sw.keys[k].booms)
+        viol.append(f"{who}, t={t0:.3f}..{t1:.3f} s ({where}): {what} {worst:.5f} m < 0 at t={tw:.4f} s")
+    viol += [f"{_describe(sw.keys[k], st)[0]}: {n - rules.MAX_PER_CHECK} more stretches below its clearance"
+             for k, n in count.items() if n > rules.MAX_PER_CHECK]
+    unclear = []
+    for k, t0, t1, f in sorted(res.unclear)[: 5 * rules.MAX_PER_CHECK]:
+        who, what = _describe(sw.keys[k], st)
+        where = "; ".join(f"boom {st.booms[i].name} {ctx[st.booms[i].name].at(t0)}" for i in sw.keys[k].booms)
+        unclear.append(f"{who}, t={t0:.4f}..{t1:.4f} s ({where}): {what} not certified: its floor is {f:.5f} m after "
+                       f"{sw.levels} refinements, though every sample is clear")
+    if len(res.unclear) > 5 * rules.MAX_PER_CHECK:
+        unclear.append(f"{len(res.unclear) - 5 * rules.MAX_PER_CHECK} more intervals not certified")
+    return viol, unclear
+
+
+def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spacing_m: float = 0.005,
+          collar_tol_mm: float = 0.1, angle_tol_deg: float | None = None, levels: int = 4,
+          trajectory_only: bool = False) -> dict:
+    """Check one round's files; returns the report (raises :class:`InputError` on input it cannot judge).
+
+    ``trajectory_only``: the motion alone (clearances, limits, speeds, park, the planner's flags), for a
+    trajectory file without its round table, JSON and plan; no hole and no makespan is checked."""
+    for name, v in (("--spacing-m", spacing_m), ("--collar-tol-mm", collar_tol_mm)) + (
+            (("--angle-tol-deg", angle_tol_deg),) if angle_tol_deg is not None else ()):
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise InputError(f"{name} {v!r}: must be a positive number")
+    if not (isinstance(levels, int) and 0 <= levels <= 10):
+        raise InputError(f"--levels {levels!r}: must be an integer in 0..10")
+    trajectory = Path(trajectory)
+    if not trajectory.is_file():
+        raise InputError(f"{trajectory}: no such trajectory file")
+    st = settings(list(overrides))
+    if trajectory_only:
+        return _motion(st, trajectory, spacing_m, levels, None, {"checked": "trajectory only: no hole, round "
+                                                                            "table or makespan check"})
+    round_csv, summary_path, plan = _siblings(trajectory, round_csv, summary, plan)
+    doc = read_summary(summary_path)
+    if doc.get("rig") not in (None, st.rig):
+        raise InputError(f"{summary_path}: the round was planned for rig {doc['rig']!r}, the settings compose rig "
+                         f"{st.rig!r}: pass rig={doc['rig']} (and the stage's other overrides)")
+    rows = read_trajectory(trajectory, {b.name: b.model.joint_names for b in st.booms})
+    table = read_round_table(round_csv)
+    plan_path = _plan_path(doc, summary_path, plan)
+    holes_plan = read_plan(plan_path)
+    depth = max((b.model.preview_depth for b in st.booms), default=0.0) or 1.0
+    collar_tol = collar_tol_mm * 1e-3
+    # the matching angle: the direction error that moves the preview point (paper 000 eq. 3) by the collar tolerance
+    angle_tol = math.radians(angle_tol_deg) if angle_tol_deg is not None else collar_tol / depth
+
+    given = table[table["status"] == "ok"]["boom"].value_counts().to_dict()
+    report = _motion(st, trajectory, spacing_m, levels, given, {}, rows)
+    msgs, hole_stats = rules.holes(st, rows, table, holes_plan, collar_tol, angle_tol)
+    for b in st.booms:
+        report["booms"][b.name].update(hole_stats.get(b.name, {}))
+    mk, _ = rules.makespan(rows, doc, summary_path)
+    report["violations"] = msgs + mk + report["violations"]
+    report.update({"round": str(round_csv), "summary": str(summary_path), "plan": str(plan_path),
+                   "collar_tol_mm": collar_tol_mm, "angle_tol_deg": math.degrees(angle_tol),
+                   "json_makespan_s": float(doc["makespan_s"]), "holes": hole_stats["_holes"]})
+    return report
+
+
+def _motion(st, trajectory, spacing_m, levels, given, head, rows=None) -> dict:
+    """The checks of the motion itself: park, limits, speeds, the planner's flags, certified clearances."""
+    if rows is None:
+        rows = read_trajectory(trajectory, {b.name: b.model.joint_names for b in st.booms})
+    given = given or {}
+    ctx = {b.name: rules.Context(rows[b.name]) for b in st.booms}
+    violations, booms_out = [], {}
+    for b in st.booms:
+        r = rows[b.name]
+        violations += rules.park(b, r, int(given.get(b.name, 0)))
+        violations += rules.limits(b, r, ctx[b.name])
+        msgs, ratio = rules.speeds(b, r, ctx[b.name])
+        violations += msgs
+        violations += rules.unclear_moves(b, r, ctx[b.name])
+        booms_out[b.name] = {"rows": int(len(r.t)), "end_s": float(r.t[-1]), "speed_ratio_max": ratio}
+    sw = Sweep(st, rows, spacing_m, levels=levels)
+    res = sw.run()
+    clear, pairs = _report_clearances(sw, res, st)
+    sampled, unclear = _messages(sw, res, st, ctx)
+    violations += sampled
+    for b in st.booms:
+        booms_out[b.name].update(clear[b.name])
+    return {
+        "trajectory": str(trajectory), **head, "rig": st.rig, "d_boom_m": st.d_boom, "safety_m": st.safety,
+        "convention": "clearance = distance - radii - safety distance (boom-boom: distance - radii, against d_boom); "
+                      ">= 0 passes",
+        "spacing_m": spacing_m, "instants": res.instants, "refined_instants": res.refined,
+        "makespan_s": max(float(r.t[-1]) for r in rows.values()), "booms": booms_out, "pairs": pairs,
+        "min_boom_distance_m": min((p["distance_m"]["sampled"] for p in pairs.values()), default=None),
+        "min_boom_distance_certified_m": min((p["distance_m"]["certified"] for p in pairs.values()
+                                              if p["distance_m"]["certified"] is not None), default=None),
+        "violations": violations, "not_certified": unclear,
+    }
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # bad arguments: exit 2 with one line, like every input error
+        print(f"check_round: {message}\nusage: {USAGE}", file=sys.stderr)
+        raise SystemExit(2)
+
+
+def main(argv=None) -> int:
+    ap = _Parser(description="Check a round's files independently of the planner.", usage=USAGE)
+    ap.add_argument("trajectory", type=Path)
+    ap.add_argument("overrides", nargs="*", help="Hydra overrides, the stage's own (rig=twin ...)")
+    ap.add_argument("--round", dest="round_csv", help="the round table (default <stem>_round.csv)")
+    ap.add_argument("--summary", help="the round JSON (default <stem>_round.json)")
+    ap.add_argument("--plan", help="the drill plan, CSV (default: the JSON's `plan`)")
+    ap.add_argument("--spacing-m", type=float, default=0.005, help="most a body point moves between samples (m)")
+    ap.add_argument("--collar-tol-mm", type=float, default=0.1)
+    ap.add_argument("--angle-tol-deg", type=float, default=None, help="default: collar tolerance / preview depth")
+    ap.add_argument("--levels", type=int, default=4, help="refinements (x8 each) of an interval not yet certified")
+    ap.add_argument("--trajectory-only", action="store_true",
+                    help="the motion alone (no round table, JSON or plan): no hole and no makespan check")
+    args = ap.parse_intermixed_args(argv)
+    bad = [o for o in args.overrides if "=" not in o]
+    if bad:
+        print(f"check_round: {bad}: not Hydra overrides (key=value)\nusage: {USAGE}", file=sys.stderr)
+        return 2
+    try:
+        out = check(args.trajectory, args.overrides, args.round_csv, args.summary, args.plan, args.spacing_m,
+                    args.collar_tol_mm, args.angle_tol_deg, args.levels, args.trajectory_only)
+    except InputError as e:
+        print(f"check_round: {e}", file=sys.stderr)
+        return 2
+    print(json.dumps(out, indent=1))
+    return 1 if out["violations"] or out["not_certified"] else 0

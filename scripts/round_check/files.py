@@ -1,0 +1,158 @@
+"""Reading a round's files, refusing what cannot be judged (:class:`InputError`, exit 2).
+
+Rows are named by file line (the header is line 1). The trajectory file is spec section 7's: columns
+``boom, t, q1 .. q8, event, hole_id``, each boom's rows in strictly increasing t.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .errors import InputError
+
+EVENTS = {"park", "move", "move_unclear", "collar", "drill", "retract", "wait", "done"}
+HOLE_EVENTS = ("collar", "drill", "retract")
+ROUND_COLUMNS = ["hole_id", "boom", "t_start", "t_end", "status"]
+PLAN_COLUMNS = ["hole_id", "collar_x", "collar_y", "collar_z", "toe_x", "toe_y", "toe_z"]
+STATUSES = {"ok", "unreachable", "invalid"}
+
+
+@dataclass
+class BoomRows:
+    t: np.ndarray  # (n,)
+    q: np.ndarray  # (n, joints) rad / m, as written (full-turn joints may be unwrapped)
+    event: np.ndarray  # (n,) str
+    hole: np.ndarray  # (n,) str
+    line: np.ndarray  # (n,) file line of each row
+
+
+def _table(path: Path, what: str) -> pd.DataFrame:
+    if not path.is_file():
+        raise InputError(f"{path}: no such {what}")
+    try:
+        df = pd.read_csv(path, dtype=str, keep_default_na=False)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: not a readable CSV {what}: {' '.join(str(e).split())}") from None
+    df.columns = [str(c).strip() for c in df.columns]
+    return df
+
+
+def _require(df: pd.DataFrame, cols, path: Path) -> None:
+    missing = [c for c in cols if c not in df.columns]
+    if missing:
+        raise InputError(f"{path}: missing column(s) {missing}; found {list(df.columns)}")
+
+
+def _numbers(df: pd.DataFrame, cols, path: Path, who: pd.Series | None = None) -> np.ndarray:
+    """``(n, len(cols))`` floats; a missing, unreadable or non-finite cell is an error naming its row."""
+    vals = np.stack([pd.to_numeric(df[c].str.strip(), errors="coerce").to_numpy(float) for c in cols], -1)
+    bad = ~np.isfinite(vals)
+    if bad.any():
+        i, j = np.argwhere(bad)[0]
+        boom = f"boom {who.iloc[i]!r}, " if who is not None else ""
+        raise InputError(f"{path}: {boom}row {i + 2}: {cols[j]} = {df[cols[j]].iloc[i]!r} is not a finite number"
+                         f" ({int(bad.any(1).sum())} such row(s))")
+    return vals
+
+
+def read_trajectory(path: Path, booms: dict[str, list[str]]) -> dict[str, BoomRows]:
+    """Each rig boom's rows; ``booms``: name -> joint names (every rig boom must have rows)."""
+    df = _table(path, "trajectory file")
+    joints = list(dict.fromkeys(j for names in booms.values() for j in names))
+    _require(df, ["boom", "t", *joints, "event", "hole_id"], path)
+    if df.empty:
+        raise InputError(f"{path}: no rows")
+    name = df["boom"].str.strip()
+    unknown = ~name.isin(list(booms))
+    if unknown.any():
+        i = int(np.flatnonzero(unknown)[0])
+        raise InputError(f"{path}: row {i + 2}: boom {name.iloc[i]!r} is not a boom of the rig {sorted(booms)}")
+    missing = [b for b in booms if not (name == b).any()]
+    if missing:
+        raise InputError(f"{path}: no rows for boom(s) {missing} of the rig {sorted(booms)}")
+    vals = _numbers(df, ["t", *joints], path, name)
+    event = df["event"].str.strip().to_numpy(str)
+    hole = df["hole_id"].str.strip().to_numpy(str)
+    bad = ~np.isin(event, sorted(EVENTS))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(f"{path}: boom {name.iloc[i]!r}, row {i + 2}: event {event[i]!r} is not one of "
+                         f"{sorted(EVENTS)}")
+    nameless = np.isin(event, HOLE_EVENTS) & (hole == "")
+    if nameless.any():
+        i = int(np.flatnonzero(nameless)[0])
+        raise InputError(f"{path}: boom {name.iloc[i]!r}, row {i + 2}: a {event[i]} row without hole_id")
+    out = {}
+    for b, names in booms.items():
+        idx = np.flatnonzero((name == b).to_numpy())
+        t = vals[idx, 0]
+        step = np.diff(t)
+        if (step <= 0).any():
+            k = int(np.flatnonzero(step <= 0)[0])
+            what = "repeats the time of" if step[k] == 0 else "goes back in time from"
+            raise InputError(f"{path}: boom {b!r}, row {idx[k + 1] + 2}: t = {t[k + 1]!r} {what} its previous row "
+                             f"(row {idx[k] + 2}, t = {t[k]!r}); a boom's rows must be in strictly increasing t")
+        q = vals[idx][:, [1 + joints.index(j) for j in names]]
+        out[b] = BoomRows(t, q, event[idx], hole[idx], idx + 2)
+    return out
+
+
+def read_round_table(path: Path) -> pd.DataFrame:
+    df = _table(path, "round table")
+    _require(df, ROUND_COLUMNS, path)
+    df = df.assign(hole_id=df["hole_id"].str.strip(), boom=df["boom"].str.strip(), status=df["status"].str.strip())
+    bad = ~df["status"].isin(sorted(STATUSES))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(f"{path}: row {i + 2}: status {df['status'].iloc[i]!r} is not one of {sorted(STATUSES)}")
+    dup = df["hole_id"].duplicated(keep=False)
+    if dup.any():
+        raise InputError(f"{path}: hole(s) {sorted(set(df['hole_id'][dup]))} listed more than once")
+    ok = df["status"] == "ok"
+    times = _numbers(df[ok], ["t_start", "t_end"], path)
+    df["t_start_s"], df["t_end_s"] = np.nan, np.nan
+    df.loc[ok, "t_start_s"], df.loc[ok, "t_end_s"] = times[:, 0], times[:, 1]
+    return df
+
+
+def read_summary(path: Path) -> dict:
+    if not path.is_file():
+        raise InputError(f"{path}: no such round JSON")
+    try:
+        doc = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: not readable JSON: {e}") from None
+    if not isinstance(doc, dict):
+        raise InputError(f"{path}: expected a JSON object")
+    m = doc.get("makespan_s")
+    if isinstance(m, bool) or not isinstance(m, (int, float)) or not np.isfinite(m):
+        raise InputError(f"{path}: makespan_s = {m!r}: expected a finite number")
+    return doc
+
+
+@dataclass
+class Plan:
+    ids: list[str]
+    collar: np.ndarray  # (n, 3), NaN on rows that do not read as numbers (the round table's `invalid`)
+    toe: np.ndarray
+
+
+def read_plan(path: Path) -> Plan:
+    """A CSV drill plan (``hole_id``, collar and toe x y z in the rig frame, m); an unreadable row keeps
+    NaN coordinates: the planner reports such a row as ``invalid`` and does not drill it."""
+    if path.suffix.lower() == ".xml":
+        raise InputError(f"{path}: an IREDES plan; the independent checker reads CSV plans only: pass the same holes "
+                         "as CSV with --plan")
+    df = _table(path, "drill plan")
+    _require(df, PLAN_COLUMNS, path)
+    ids = df["hole_id"].str.strip()
+    dup = ids.duplicated(keep=False) & (ids != "")
+    if dup.any():
+        raise InputError(f"{path}: hole id(s) {sorted(set(ids[dup]))} appear more than once")
+    xyz = np.stack([pd.to_numeric(df[c].str.strip(), errors="coerce").to_numpy(float) for c in PLAN_COLUMNS[1:]], -1)
+    return Plan(ids.tolist(), xyz[:, :3], xyz[:, 3:])

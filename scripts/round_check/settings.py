@@ -1,0 +1,118 @@
+"""The rig, tunnel, safety distances and motion from the same composed config as the stage's.
+
+Hydra's compose API on the project's ``conf/`` with the stage's own command-line overrides
+(``rig=twin motion.joint_speeds.q1=7.5 ...``): Hydra is the settings reader, nothing of ``pipeline``
+is imported. A rig boom whose ``boom:`` equals the composed ``boom.name`` uses the composed ``boom``
+node (so ``boom.*`` overrides reach it); any other reads ``conf/boom/<name>.yaml``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .boom import BoomModel
+from .errors import InputError
+
+CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
+
+
+@dataclass
+class RigBoom:
+    name: str
+    model: BoomModel
+    base: np.ndarray  # (3,) rig frame, no rotation (spec section 7)
+    park: np.ndarray  # rad / m
+    speed: np.ndarray  # rad/s / m/s, per joint
+
+
+@dataclass
+class Settings:
+    rig: str
+    d_boom: float
+    booms: list[RigBoom]
+    half_width: float
+    wall_height: float
+    safety: dict[str, float]  # self, wall, ground, arch (m)
+    collaring_s: float
+    rate_m_per_s: float  # penetration
+    retract_m_per_s: float
+
+    def drill_times(self, length: np.ndarray) -> np.ndarray:
+        """``(n, 3)``: collaring, drilling and retraction seconds of holes of ``length`` (spec section 7)."""
+        length = np.asarray(length, float)
+        return np.stack([np.full(length.shape, self.collaring_s), length / self.rate_m_per_s,
+                         length / self.retract_m_per_s], -1)
+
+
+def compose(overrides: list[str]):
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+    from omegaconf import OmegaConf
+
+    try:
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            cfg = hydra_compose(config_name="config", overrides=list(overrides))
+        return OmegaConf.to_container(cfg, resolve=True)
+    except Exception as e:  # Hydra's own errors name the override; keep them, on one line
+        raise InputError(f"settings {list(overrides)}: {' '.join(str(e).split())}") from None
+
+
+def _number(node: dict, key: str, where: str, positive: bool = True) -> float:
+    v = node.get(key) if isinstance(node, dict) else None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or (positive and v <= 0):
+        raise InputError(f"settings: {where}.{key} = {v!r}: expected a {'positive ' if positive else ''}number")
+    return float(v)
+
+
+def _boom_node(name: str, composed: dict) -> tuple[dict, str]:
+    if composed.get("name") == name:
+        return composed, "the composed boom node"
+    path = CONF_DIR / "boom" / f"{name}.yaml"
+    if not path.is_file():
+        raise InputError(f"settings: rig boom type {name!r}: no {path}")
+    from omegaconf import OmegaConf
+
+    return OmegaConf.to_container(OmegaConf.load(path), resolve=True), str(path)
+
+
+def settings(overrides: list[str]) -> Settings:
+    cfg = compose(overrides)
+    if cfg.get("boom_model"):
+        raise InputError(f"settings: boom_model = {cfg['boom_model']!r}: the independent checker does not support "
+                         "calibrated boom models yet (it checks the nominal D-H of conf/boom/ only)")
+    rig, motion, safety, tunnel = cfg["rig"], cfg["motion"], cfg["safety"], cfg["tunnel"]
+    speeds = motion.get("joint_speeds") or {}
+    drilling = motion.get("drilling") or {}
+    booms, models = [], {}
+    for i, b in enumerate(rig.get("booms") or []):
+        where = f"rig.booms[{i}]"
+        kind = str(b.get("boom"))
+        if kind not in models:
+            node, src = _boom_node(kind, cfg["boom"])
+            models[kind] = BoomModel(node, src)
+        m = models[kind]
+        base, park = np.asarray(b.get("base", []), float), np.asarray(b.get("park", []), float)
+        finite = np.isfinite(base).all() and np.isfinite(park).all()
+        if base.shape != (3,) or park.shape != (len(m.joint_names),) or not finite:
+            raise InputError(f"settings: {where} ({b.get('name')}): base needs 3 numbers, park {len(m.joint_names)}")
+        missing = [j for j in m.joint_names if j not in speeds]
+        if missing:
+            raise InputError(f"settings: motion.joint_speeds has no {missing} for boom {b.get('name')} ({kind})")
+        unit = np.where(m.revolute, math.pi / 180.0, 1.0)  # rig parks and speeds: deg (revolute), m (prismatic)
+        speed = np.array([_number(speeds, j, "motion.joint_speeds") for j in m.joint_names]) * unit
+        booms.append(RigBoom(str(b.get("name")), m, base, park * unit, speed))
+    names = [b.name for b in booms]
+    if not booms or len(set(names)) != len(names):
+        raise InputError(f"settings: rig {rig.get('name')!r}: booms {names}: expected one or more, each named once")
+    return Settings(
+        rig=str(rig.get("name")), d_boom=_number(rig, "d_boom", "rig", positive=False), booms=booms,
+        half_width=0.5 * _number(tunnel, "width", "tunnel"), wall_height=_number(tunnel, "wall_height", "tunnel"),
+        safety={k: _number(safety, k, "safety", positive=False) for k in ("self", "wall", "ground", "arch")},
+        collaring_s=_number(drilling, "collaring_s", "motion.drilling", positive=False),
+        rate_m_per_s=_number(drilling, "rate_m_per_min", "motion.drilling") / 60.0,
+        retract_m_per_s=_number(drilling, "retract_m_per_s", "motion.drilling"),
+    )
