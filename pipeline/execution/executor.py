@@ -75,7 +75,8 @@ def execute(acts: Actions, interlocks: np.ndarray, drill_s) -> Execution:
         end[:, k] = start[:, k] + dur[:, k]
     prev = acts.previous
     ready = np.where(prev >= 0, end[:, np.clip(prev, 0, None)], 0.0)
-    wait = start - ready
+    with np.errstate(invalid="ignore"):  # a deadlock leaves inf - inf: no wait to count there
+        wait = np.nan_to_num(start - ready, nan=0.0)
     B = len(acts.booms)
     standing = np.zeros((D, B))
     for b in range(B):  # a few booms

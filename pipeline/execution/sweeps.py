@@ -22,7 +22,11 @@ surfaces lie inside); per action the box of its samples' boxes. The distance bet
 norm of the per-axis gaps) is at most the capsule surfaces' distance, so action pairs and then sample
 pairs whose boxes are farther apart than ``d_boom + margin + (delta_a + delta_b) / 2`` cannot
 conflict and are never evaluated. The rest: all-pairs capsule distances (:meth:`BoomPair.distances`
-on rig-frame frames) in chunks of sample pairs, reduced per action pair with a scatter-min.
+semantics: the clamped segment distance of the capsule axes less both radii, on precomputed rig-frame
+capsule ends) in chunks of sample pairs, reduced per action pair with a scatter-min, coarse to fine
+(``STRIDES``: every 16th sample of each sweep, every 4th, all; with stride s the spacing is s delta,
+so the same certificate holds at each level): a pair whose sampled minimum is already below the
+margin (a real conflict) or whose certified floor is above it is decided and not sampled finer.
 """
 
 from __future__ import annotations
