@@ -1,0 +1,95 @@
+"""Drilling durations that are not the model's: the draws, their execution and a summary.
+
+The draws (``conf/execution/default.yaml``), as factors of each hole's section-7 drilling time:
+
+- ``draws`` random ones, every hole's factor uniform in ``[low, high]`` independently (a seeded numpy
+  Generator: the same settings give the same draws);
+- every drilled hole alone at ``stall_factor`` (a jammed rod), the others at 1;
+- one boom at ``slow_factor`` while the others run at ``quick_factor``, each boom in turn.
+
+All are executed at once (:func:`pipeline.execution.executor.execute`, vectorised over draws). The
+summary gives the makespan's ratio to the nominal one (p50, p95, max) and the time the booms stood at
+interlocks as a share of the draw's makespan (p95, max), and the deadlocks (the graph is the same for
+every draw, so a deadlock is all or nothing).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pipeline.core.errors import ConfigError
+from pipeline.core.settings import parse, rule
+from pipeline.execution.actions import Actions
+from pipeline.execution.executor import Execution, execute
+
+
+@dataclass(frozen=True)
+class ExecutionSettings:
+    """``conf/execution/<name>.yaml`` (module docstring)."""
+
+    draws: int = field(default=1000, metadata=rule(ge=0))
+    low: float = field(default=0.7, metadata=rule(gt=0))
+    high: float = field(default=1.5, metadata=rule(gt=0))
+    seed: int = field(default=0, metadata=rule(ge=0))
+    stall_factor: float = field(default=3.0, metadata=rule(gt=0))
+    slow_factor: float = field(default=1.5, metadata=rule(gt=0))
+    quick_factor: float = field(default=0.7, metadata=rule(gt=0))
+
+
+def parse_execution(node: Mapping, source: str = "execution") -> ExecutionSettings:
+    s = parse(ExecutionSettings, node, source)
+    if s.high < s.low:
+        raise ConfigError(f"{source}.high = {s.high}: must be >= {source}.low = {s.low}")
+    return s
+
+
+@dataclass(frozen=True)
+class Draws:
+    """Factors ``(D, H)`` and a label per draw (``random``, ``stall <hole_id>``, ``slow <boom>``)."""
+
+    factors: np.ndarray
+    labels: list[str]
+
+
+def draws(acts: Actions, settings: ExecutionSettings) -> Draws:
+    """The module's draws for the holes ``acts`` drills."""
+    H, B = len(acts.hole_ids), len(acts.booms)
+    rng = np.random.default_rng(settings.seed)
+    rand = rng.uniform(settings.low, settings.high, size=(settings.draws, H))
+    drilled = np.unique(acts.hole[acts.is_drill])
+    stall = np.ones((len(drilled), H))
+    stall[np.arange(len(drilled)), drilled] = settings.stall_factor
+    owner = np.full(H, -1)
+    owner[acts.hole[acts.is_drill]] = acts.boom[acts.is_drill]
+    booms = [b for b in range(B) if (owner == b).any()]
+    slow = np.where(owner[None, :] == np.array(booms)[:, None], settings.slow_factor, settings.quick_factor)
+    labels = (["random"] * settings.draws + [f"stall {acts.hole_ids[h]}" for h in drilled]
+              + [f"slow {acts.booms[b]}" for b in booms])
+    return Draws(np.concatenate([rand, stall, slow.reshape(-1, H)]), labels)
+
+
+def run(acts: Actions, interlocks: np.ndarray, drill_s: np.ndarray, d: Draws) -> Execution:
+    """Every draw executed: drilling durations ``factors * drill_s``."""
+    return execute(acts, interlocks, d.factors * np.asarray(drill_s, float)[None, :])
+
+
+def summary(ex: Execution, nominal_makespan_s: float, d: Draws) -> dict:
+    """Makespan ratios to the nominal round and standing shares, over the random draws and over all."""
+    deadlock = ex.deadlock is not None
+    share = ex.standing.sum(1) / np.where(ex.makespan > 0, ex.makespan, 1.0)
+    ratio = ex.makespan / nominal_makespan_s if nominal_makespan_s > 0 else np.ones_like(ex.makespan)
+    rand = np.array([lab == "random" for lab in d.labels])
+
+    def stats(mask):
+        if not mask.any() or deadlock:
+            return None
+        r, s = ratio[mask], share[mask]
+        return {"draws": int(mask.sum()), "makespan_ratio_p50": float(np.percentile(r, 50)),
+                "makespan_ratio_p95": float(np.percentile(r, 95)), "makespan_ratio_max": float(r.max()),
+                "standing_share_p95": float(np.percentile(s, 95)), "standing_share_max": float(s.max())}
+
+    return {"nominal_makespan_s": nominal_makespan_s, "draws": len(d.labels), "deadlocks": len(d.labels) if deadlock
+            else 0, "random": stats(rand), "all": stats(np.ones_like(rand))}
