@@ -84,7 +84,7 @@ def _unclear_move(rig, inst, oracle):
 def test_book_detours_a_move_that_breaks_clearance_and_the_oracle_follows_it(demo):
     rig, inst, oracle = demo
     b, u, v = _unclear_move(rig, inst, oracle)
-    book = MoveBook(oracle, inst.n_holes)
+    book = MoveBook(oracle, inst.n_holes, RoundSettings())
     routes = [[] for _ in range(inst.n_booms)]
     routes[b] = [u, v]
     new = book.ensure(inst, routes)
@@ -129,7 +129,7 @@ def test_book_detours_a_move_that_breaks_clearance_and_the_oracle_follows_it(dem
 
 def test_book_keeps_clear_moves_straight(demo):
     rig, inst, oracle = demo
-    book = MoveBook(oracle, inst.n_holes)
+    book = MoveBook(oracle, inst.n_holes, RoundSettings())
     for b in range(inst.n_booms):
         uv = _moves(inst, b, 12)
         q = oracle.joints[b]

@@ -39,7 +39,7 @@ THROUGH_A = [13.654, 11.363, 3.4897, 144.3, 10.614, 17.196, 131.379, 1.3758]
 THROUGH_B = [-0.076, 14.51, 3.8818, -169.514, -57.565, 17.05, -178.158, 2.7767]
 # Inside R's standing place at park (boom-boom clearance about -0.43 m), clear of tunnel and self.
 INTO_R = [-27.488, -5.978, 3.2858, 59.617, -23.335, -5.875, -116.992, 1.4645]
-PLANNER = PlannerSettings(time_s=10.0, simplify_s=0.5, seed=1)
+PLANNER = PlannerSettings(iterations=20000, simplify_steps=40, seed=1)  # counts: reproducible
 
 
 @pytest.fixture(scope="module")

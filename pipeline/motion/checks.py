@@ -43,6 +43,28 @@ from pipeline.geometry.tunnel import SURFACES
 from pipeline.motion.path import Path, Timed, distinct, travel
 
 RESOLUTION = 0.01  # m: no boom point moves more than this between two checks (issue 19)
+REFINEMENTS = 4  # halvings of the resolution tried where a floor is short of its margin (16x denser at most)
+KINDS = ("self", "tunnel", "boom")  # the kinds of clearance a floor and a margin are given for
+
+
+def margins(tolerance: float, others_move: bool = False, self_m: float = 0.0, tunnel_m: float = 0.0
+            ) -> dict[str, float]:
+    """The certified floor each kind must keep so that the trajectory file is clear too, plus any
+    extra ``self_m``, ``tunnel_m`` (m) a caller asks for.
+
+    The file's rows lie on the planned joint-space segments (:meth:`pipeline.motion.path.Path.rows`:
+    both sides are ``start + s step``, rows at every waypoint), so linear interpolation between rows
+    passes through the plan's own configurations, only at other times. A boom's self and tunnel
+    clearances, and its distance to a boom *standing* still, depend on its configuration alone: the
+    file keeps the plan's floor, margin 0. A distance to a *moving* boom depends on timing; each
+    boom's rows stay within ``tolerance`` of its plan at every point, so it needs ``2 tolerance``
+    (the oracle's floor, :mod:`pipeline.round.oracle`)."""
+    return {"self": float(self_m), "tunnel": float(tunnel_m), "boom": 2 * tolerance if others_move else 0.0}
+
+
+def kind_of(key: str) -> str:
+    """The kind of a clearance key: ``self``, ``tunnel`` (wall, ground, arch, tunnel) or ``boom``."""
+    return "self" if key == "self" else "boom" if key.startswith("boom") else "tunnel"
 
 
 def lever_arms(boom: Boom) -> torch.Tensor:
@@ -106,10 +128,24 @@ class Clearance:
     first_violation: float | None = None  # seconds from the motion's start, None when clear
     broken: str = ""  # what broke first: "self", "wall", "ground", "arch" or "boom <name>"
     floor: float = -math.inf  # certified lower bound of every clearance at every instant (module doc)
+    floors: dict[str, float] | None = None  # the floor per kind (KINDS); None when no drift was given
 
     @property
     def clear(self) -> bool:
         return self.first_violation is None
+
+    def short(self, margin: Mapping[str, float]) -> dict[str, float]:
+        """The kinds whose certified floor is below ``margin[kind]``, with their floor (all when unknown)."""
+        floors = self.floors or {k: -math.inf for k in KINDS}
+        return {k: f for k, f in floors.items() if f < margin[k]}
+
+    def certified(self, margin: Mapping[str, float]) -> bool:
+        """Clear at every instant by at least ``margin`` of each kind (not only at the checked ones)."""
+        return self.clear and not self.short(margin)
+
+    def sampled_at_least(self, margin: Mapping[str, float]) -> bool:
+        """Every sampled clearance >= its kind's margin: a finer sampling may certify the motion."""
+        return self.self >= margin["self"] and self.tunnel >= margin["tunnel"] and self.boom >= margin["boom"]
 
     def as_dict(self) -> dict[str, float]:
         return {"self": self.self, "tunnel": self.tunnel, "boom": self.boom}
@@ -156,13 +192,21 @@ def summarise(values: dict[str, torch.Tensor], t: torch.Tensor, drift: dict[str,
     if bool(bad.any()):
         k = int(torch.nonzero(bad)[0, 0])
         first, broken = float(t[k]), keys[int(torch.argmin(worst[:, k]))]
-    floor = -math.inf
+    floor, floors = -math.inf, None
     if drift is not None:
-        lo = torch.minimum(worst[:, 1:], worst[:, :-1])
-        mid = 0.5 * (worst[:, 1:] + worst[:, :-1] - torch.stack([drift[k] for k in keys]))
-        floor = float(torch.minimum(lo, mid).min()) if t.shape[0] > 1 else float(worst.min())
+        if t.shape[0] > 1:
+            lo = torch.minimum(worst[:, 1:], worst[:, :-1])
+            mid = 0.5 * (worst[:, 1:] + worst[:, :-1] - torch.stack([drift[k] for k in keys]))
+            per_key = torch.minimum(lo, mid).amin(1)
+        else:
+            per_key = worst.amin(1)
+        floor = float(per_key.min())
+        floors = {k: math.inf for k in KINDS}
+        for key, f in zip(keys, per_key.tolist(), strict=True):
+            floors[kind_of(key)] = min(floors[kind_of(key)], f)
     return Clearance(float(values["self"].min()), float(tunnel.min()),
-                     float(boom.min()) if boom is not None else math.inf, int(t.shape[0]), first, broken, floor)
+                     float(boom.min()) if boom is not None else math.inf, int(t.shape[0]), first, broken, floor,
+                     floors)
 
 
 def check(rig: Rig, index: int, t: torch.Tensor, q: torch.Tensor, others: Mapping | None = None,
@@ -192,6 +236,21 @@ def check_path(rig: Rig, index: int, path: Path, others: Mapping | None = None, 
     return check(rig, index, t, path.positions(t), others, t0)
 
 
+def certify_path(rig: Rig, index: int, path: Path, margin: Mapping[str, float], others: Mapping | None = None,
+                 t0: float = 0.0, resolution: float = RESOLUTION, refinements: int = REFINEMENTS) -> Clearance:
+    """:func:`check_path`, its resolution halved up to ``refinements`` times while the motion is clear
+    at every sample by its margins but a certified floor is still short of them (the floor's gap to
+    the samples shrinks with the resolution). The last check is returned: :meth:`Clearance.certified`
+    says whether it proves ``margin`` at every instant."""
+    c = check_path(rig, index, path, others, t0, resolution)
+    for _ in range(refinements):
+        if c.certified(margin) or not (c.clear and c.sampled_at_least(margin)):
+            break
+        resolution /= 2
+        c = check_path(rig, index, path, others, t0, resolution)
+    return c
+
+
 @dataclass(frozen=True)
 class StraightChecks:
     """Per straight move ``(M,)``: the smallest sampled clearance of each kind (``self``, ``tunnel``,
@@ -201,15 +260,43 @@ class StraightChecks:
     least: dict[str, torch.Tensor]
     floor: dict[str, torch.Tensor]
 
-    def clear(self, kinds: tuple[str, ...] | None = None, margin: float = 0.0) -> torch.Tensor:
-        """Moves whose sampled clearances of ``kinds`` (default all) are all >= ``margin``."""
+    def clear(self, kinds: tuple[str, ...] | None = None, margin: float | Mapping[str, float] = 0.0) -> torch.Tensor:
+        """Moves whose sampled clearances of ``kinds`` (default all) are all >= ``margin`` (one value, or
+        one per kind of :data:`KINDS`)."""
         keys = kinds or tuple(self.least)
-        return torch.stack([self.least[k] >= margin for k in keys]).all(0)
+        return torch.stack([self.least[k] >= _margin(margin, k) for k in keys]).all(0)
 
-    def certified(self, kinds: tuple[str, ...] | None = None, margin: float = 0.0) -> torch.Tensor:
+    def certified(self, kinds: tuple[str, ...] | None = None,
+                  margin: float | Mapping[str, float] = 0.0) -> torch.Tensor:
         """Moves whose floors of ``kinds`` are all >= ``margin`` (clear at every instant)."""
         keys = kinds or tuple(self.floor)
-        return torch.stack([self.floor[k] >= margin for k in keys]).all(0)
+        return torch.stack([self.floor[k] >= _margin(margin, k) for k in keys]).all(0)
+
+
+def _margin(margin: float | Mapping[str, float], key: str) -> float:
+    return float(margin) if isinstance(margin, (int, float)) else margin[kind_of(key)]
+
+
+def certify_straight_moves(rig: Rig, index: int, qa: torch.Tensor, qb: torch.Tensor,
+                           margin: Mapping[str, float], kinds: tuple[str, ...] = ("self", "tunnel"),
+                           others: Mapping | None = None, resolution: float = RESOLUTION,
+                           refinements: int = REFINEMENTS) -> StraightChecks:
+    """:func:`check_straight_moves` of ``kinds``, each move whose samples all keep ``margin`` but whose
+    floor is short of it checked again at half the resolution, up to ``refinements`` times (only
+    those moves: one batch per halving). The result holds each move's finest check."""
+    checks = check_straight_moves(rig, index, qa, qb, others, resolution)
+    least = {k: v.clone() for k, v in checks.least.items()}
+    floor = {k: v.clone() for k, v in checks.floor.items()}
+    out = StraightChecks(least, floor)
+    for _ in range(refinements):
+        todo = torch.nonzero(out.clear(kinds, margin) & ~out.certified(kinds, margin)).flatten()
+        if not len(todo):
+            break
+        resolution /= 2
+        finer = check_straight_moves(rig, index, qa[todo], qb[todo], others, resolution)
+        for k in least:
+            least[k][todo], floor[k][todo] = finer.least[k], finer.floor[k]
+    return out
 
 
 def check_straight_moves(rig: Rig, index: int, qa: torch.Tensor, qb: torch.Tensor, others: Mapping | None = None,

@@ -131,4 +131,5 @@ def replay_html(trajectory: pd.DataFrame, rig, collars: np.ndarray, frames: int 
              "args": [[None], {"mode": "immediate", "frame": {"duration": 0, "redraw": False}}]}]}],
         margin={"l": 0, "r": 0, "t": 40, "b": 0},
     )
-    return fig.to_html(include_plotlyjs=True, full_html=True, auto_play=False)
+    # a fixed div id: plotly draws a random one per call, and the page must reproduce byte for byte
+    return fig.to_html(include_plotlyjs=True, full_html=True, auto_play=False, div_id="round-replay")
