@@ -26,6 +26,12 @@ travel, and within ``L (1 - x)`` of ``c_{k+1}``). :attr:`Clearance.floor` is the
 over the motion: a certified lower bound of the smallest clearance at *every* instant, not only the
 checked ones (it needs straight motion between instants, which the instants of a :class:`Path` and
 of a :class:`Timed` path's rows give).
+
+Acceptance. A motion is taken (by :func:`pipeline.motion.moves.plan_move` and the round's move book)
+only when each kind's floor (:attr:`Clearance.floors`: self, tunnel, boom) is at least its margin
+(:func:`margins`). The floor's gap below the samples shrinks with the resolution, so where every
+sample keeps its margin but a floor does not, :func:`certify_path` and :func:`certify_straight_moves`
+check again at half the resolution, up to :data:`REFINEMENTS` times.
 """
 
 from __future__ import annotations

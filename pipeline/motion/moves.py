@@ -1,8 +1,9 @@
 """Collision-free moves of one boom of a rig, from configuration A to B (spec section 7, issue 19).
 
-:func:`plan_move` tries, in order, and returns the first motion that checks clear at every instant
-(:func:`pipeline.motion.checks.check_path`: self, tunnel from the boom's base, d_boom to every other
-boom standing or moving, no point moving more than 1 cm between checks):
+:func:`plan_move` tries, in order, and returns the first motion certified clear at every instant
+(:func:`pipeline.motion.checks.certify_path`: self, tunnel from the boom's base, d_boom to every other
+boom standing or moving, no point moving more than 1 cm between checks, and each kind's certified
+floor between checks at least its margin, the checks refined where it is short):
 
 1. ``straight``: the synchronised straight line in joint space (:func:`pipeline.motion.timing.profile`);
    its duration is exactly the move time.
@@ -25,8 +26,11 @@ violation), never as clear: its rows are the straight line's, for inspection, no
 Planner details. States are joints scaled by the joint speeds (``q_i / v_i``, seconds at top speed),
 so the planner's distance, and the simplifier's path length, approximate move time. Full-turn joints
 (q4, q7) are unwrapped: the goal is A plus the short-way step, and those joints may range a half turn
-beyond A and B. A state is valid when every clearance is >= 0; an edge is valid when it is at the
-1 cm resolution of the checks (the same instants the final check uses). Other booms standing are
+beyond A and B. A state is valid when every clearance is >= its margin; an edge is valid when it is
+certified so at the 1 cm resolution of the checks, refined where the floor is short (the same
+instants the final check uses). The search and the simplifier stop after counts of iterations, OMPL's
+RNG seeded before each search (reproducible); wall-time budgets are opt-in (``PlannerSettings``).
+Other booms standing are
 obstacles where they stand. Other booms moving are planned against their *sweep*: every
 configuration their timed path takes from the move's start on (they stand at their last row after
 it), sampled every ``sweep_step`` metres of point travel and kept ``sweep_step / 2`` further away,

@@ -5,15 +5,22 @@ solutions. Before a set of routes is timed, :meth:`MoveBook.ensure` looks at eve
 was not looked at before:
 
 1. all of them at once, straight, at 1 cm of point travel (:func:`pipeline.motion.checks.
-   check_straight_moves`, the dense check of :func:`pipeline.motion.checks.check_path`): a move whose
-   self and tunnel clearances hold at every sample stays straight;
+   certify_straight_moves`, the dense check of :func:`pipeline.motion.checks.check_path`): a move whose
+   certified self and tunnel floors (a lower bound at every instant, not only at the samples) are at
+   least the margins stays straight; where the samples are clear but a floor is short, the move is
+   checked again at half the resolution (``round.refinements`` times at most);
 2. each other one is planned by :func:`pipeline.motion.moves.plan_move` (``retract``: feed back,
    travel, feed forward; then ``planned``: OMPL's RRTConnect and simplifier), clear of self, tunnel
    and the other booms standing at their parks, and becomes the oracle's detour for that move
    (:meth:`pipeline.round.oracle.KinematicOracle.set_detour`): its duration goes into ``move_s``, its
    motion into the boom-boom checks of the timeline and into the trajectory rows;
-3. a move no attempt made clear is ``failed``: it keeps the straight line and is reported with the
-   reason (``moves_not_clear`` of the round's JSON), never hidden.
+3. a move no attempt made clear (or, with ``round.detours: false``, any move not certified straight) is
+   ``failed``: it keeps the straight line, its rows are ``move_unclear`` in the trajectory file, and it
+   is reported with the reason (``moves_not_clear`` of the round's JSON), never hidden.
+
+Margins (:func:`pipeline.motion.checks.margins`): the trajectory rows lie on the moves' joint-space
+segments, so the file passes through the motion's own configurations and keeps its self and tunnel
+floors: the margins are ``round.self_margin_m`` and ``round.tunnel_margin_m`` (0 by default).
 
 A move's answer holds for its reverse too (the same configurations backwards; a rest-to-rest path
 reversed takes the same time), so both are recorded at once. The book only grows: a move looked at
