@@ -215,6 +215,15 @@ def summarise(values: dict[str, torch.Tensor], t: torch.Tensor, drift: dict[str,
                      floors)
 
 
+def _drift(rig: Rig, index: int, q: torch.Tensor, at: Mapping[int, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """Each clearance's drift bound over each interval ``(K - 1,)`` of instants (module doc)."""
+    own = travel(q[1:] - q[:-1], lever_arms(rig.booms[index].boom))
+    drift = {"self": 2 * own, **{k: own for k in SURFACES}}
+    for j, qj in at.items():
+        drift[f"boom {rig.names[j]}"] = own + travel(qj[1:] - qj[:-1], lever_arms(rig.booms[j].boom))
+    return drift
+
+
 def check(rig: Rig, index: int, t: torch.Tensor, q: torch.Tensor, others: Mapping | None = None,
           t0: float = 0.0) -> Clearance:
     """Clearances of boom ``index`` at joints ``q (K, n)`` at times ``t (K,)`` (seconds from the
@@ -222,38 +231,55 @@ def check(rig: Rig, index: int, t: torch.Tensor, q: torch.Tensor, others: Mappin
     if q.ndim != 2 or t.shape != q.shape[:1]:
         raise InputError(f"check: expected t (K,) and q (K, n), got {tuple(t.shape)} and {tuple(q.shape)}")
     at = {j: o.at(t + t0) for j, o in others_of(rig, index, others).items()}
-    own = travel(q[1:] - q[:-1], lever_arms(rig.booms[index].boom))
-    drift = {"self": 2 * own, **{k: own for k in SURFACES}}
-    for j, qj in at.items():
-        drift[f"boom {rig.names[j]}"] = own + travel(qj[1:] - qj[:-1], lever_arms(rig.booms[j].boom))
-    return summarise(clearances_at(rig, index, q, at), t, drift)
+    return summarise(clearances_at(rig, index, q, at), t, _drift(rig, index, q, at))
+
+
+def _instants(rig: Rig, index: int, path: Path, timed: Mapping[int, Timed], t0: float, resolution: float):
+    t = path.check_instants(lever_arms(rig.booms[index].boom), resolution)
+    for j, o in timed.items():
+        if o.t.shape[0] > 1:  # moving: add its own instants within the window
+            t = torch.cat([t, o.instants(lever_arms(rig.booms[j].boom), resolution, t0, t0 + path.duration) - t0])
+    return distinct(t)
 
 
 def check_path(rig: Rig, index: int, path: Path, others: Mapping | None = None, t0: float = 0.0,
                resolution: float = RESOLUTION) -> Clearance:
     """:func:`check` of a planned path at instants where no point of this boom, nor of any moving
     other boom, moves more than ``resolution`` between two checks (the module's bound)."""
-    timed = others_of(rig, index, others)
-    t = path.check_instants(lever_arms(rig.booms[index].boom), resolution)
-    for j, o in timed.items():
-        if o.t.shape[0] > 1:  # moving: add its own instants within the window
-            t = torch.cat([t, o.instants(lever_arms(rig.booms[j].boom), resolution, t0, t0 + path.duration) - t0])
-    t = distinct(t)
+    t = _instants(rig, index, path, others_of(rig, index, others), t0, resolution)
     return check(rig, index, t, path.positions(t), others, t0)
 
 
 def certify_path(rig: Rig, index: int, path: Path, margin: Mapping[str, float], others: Mapping | None = None,
                  t0: float = 0.0, resolution: float = RESOLUTION, refinements: int = REFINEMENTS) -> Clearance:
-    """:func:`check_path`, its resolution halved up to ``refinements`` times while the motion is clear
-    at every sample by its margins but a certified floor is still short of them (the floor's gap to
-    the samples shrinks with the resolution). The last check is returned: :meth:`Clearance.certified`
+    """:func:`check_path`, refined while the motion is clear at every sample by its margins but a
+    certified floor is still short of them: each interval whose floor is short is halved (its
+    midpoint in time added; the floor's gap below the samples shrinks with the interval), up to
+    ``refinements`` times. Every interval lies on one straight segment of this boom and one row
+    interval of each moving other (the instants hold every segment's and row's ends), so a half's
+    drift bound is its own chord's travel. The last check is returned: :meth:`Clearance.certified`
     says whether it proves ``margin`` at every instant."""
-    c = check_path(rig, index, path, others, t0, resolution)
-    for _ in range(refinements):
-        if c.certified(margin) or not (c.clear and c.sampled_at_least(margin)):
-            break
-        resolution /= 2
-        c = check_path(rig, index, path, others, t0, resolution)
+    timed = others_of(rig, index, others)
+    t = _instants(rig, index, path, timed, t0, resolution)
+    q = path.positions(t)
+    at = {j: o.at(t + t0) for j, o in timed.items()}
+    values = clearances_at(rig, index, q, at)
+    for level in range(refinements + 1):
+        drift = _drift(rig, index, q, at)
+        c = summarise(values, t, drift)
+        if level == refinements or c.certified(margin) or not (c.clear and c.sampled_at_least(margin)):
+            return c
+        short = torch.zeros(t.shape[0] - 1, dtype=torch.bool)
+        for key, x in values.items():  # samples keep their margins here: only the floor between can be short
+            short |= 0.5 * (x[1:] + x[:-1] - drift[key]) < margin[kind_of(key)]
+        mid = 0.5 * (t[1:] + t[:-1])[short]
+        q_mid = path.positions(mid)
+        at_mid = {j: o.at(mid + t0) for j, o in timed.items()}
+        v_mid = clearances_at(rig, index, q_mid, at_mid)
+        order = torch.argsort(torch.cat([t, mid]))
+        t, q = torch.cat([t, mid])[order], torch.cat([q, q_mid])[order]
+        at = {j: torch.cat([at[j], at_mid[j]])[order] for j in at}
+        values = {k: torch.cat([values[k], v_mid[k]])[order] for k in values}
     return c
 
 

@@ -267,22 +267,28 @@ class _Validity:
     def edge(self, q1: torch.Tensor, q2: torch.Tensor, lever: torch.Tensor, resolution: float,
              refinements: int) -> bool:
         """Whether the straight edge q1 -> q2 is certified clear by the margins at every point of it:
-        samples at ``resolution`` of point travel, halved up to ``refinements`` times while the
-        samples are clear but the floor between them is not (pipeline.motion.checks' bound)."""
+        samples at ``resolution`` of point travel, each interval whose floor is short (the samples
+        clear) halved, up to ``refinements`` times (pipeline.motion.checks' bound)."""
         R = float(travel(q2 - q1, lever))
         k = max(1, math.ceil(R / resolution))
+        s = torch.linspace(0, 1, k + 1, dtype=torch.float64)
+        q = q1 + s[:, None] * (q2 - q1)
+        if k >= 8 and not bool(self(q[::8]).all()):  # a coarse pass first: most bad edges fail it, at
+            return False  # an eighth of the cost
+        sl, drift = self.slack(q)
         for level in range(refinements + 1):
-            a = torch.linspace(0, 1, k + 1, dtype=torch.float64)[:, None]
-            q = q1 + a * (q2 - q1)
-            if level == 0 and k >= 8 and not bool(self(q[::8]).all()):  # a coarse pass first: most bad
-                return False  # edges fail it, at an eighth of the cost
-            sl, drift = self.slack(q)
             if bool((sl < 0).any()):
                 return False
-            floor = 0.5 * (sl[1:] + sl[:-1] - drift * (R / k))  # the floor less the margin, per interval
-            if bool((torch.minimum(floor, torch.minimum(sl[1:], sl[:-1])) >= 0).all()):
+            floor = 0.5 * (sl[1:] + sl[:-1] - drift * (R * (s[1:] - s[:-1]))[:, None])  # less the margin
+            short = (floor < 0).any(-1)
+            if not bool(short.any()):
                 return True
-            k *= 2
+            if level == refinements:
+                return False
+            mid = 0.5 * (s[1:] + s[:-1])[short]
+            order = torch.argsort(torch.cat([s, mid]))
+            s = torch.cat([s, mid])[order]
+            sl = torch.cat([sl, self.slack(q1 + mid[:, None] * (q2 - q1))[0]])[order]
         return False
 
 
