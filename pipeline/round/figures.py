@@ -56,7 +56,8 @@ def gantt_figure(trajectory: pd.DataFrame, booms, title: str = "") -> Figure:
         ts = t["t"].to_numpy()
         spans = {"drill": [], "move": [], "wait": []}
         for i in range(len(t) - 1):
-            kind = {"collar": "drill", "drill": "drill", "retract": "drill", "move": "move", "wait": "wait"}.get(ev[i])
+            kind = {"collar": "drill", "drill": "drill", "retract": "drill", "move": "move", "move_unclear": "move",
+                    "wait": "wait"}.get(ev[i])
             if kind:
                 spans[kind].append((ts[i], ts[i + 1] - ts[i]))
         for kind, s in spans.items():
