@@ -253,8 +253,9 @@ def check_path(rig: Rig, index: int, path: Path, others: Mapping | None = None, 
 def certify_path(rig: Rig, index: int, path: Path, margin: Mapping[str, float], others: Mapping | None = None,
                  t0: float = 0.0, resolution: float = RESOLUTION, refinements: int = REFINEMENTS) -> Clearance:
     """:func:`check_path`, refined while the motion is clear at every sample by its margins but a
-    certified floor is still short of them: each interval whose floor is short is halved (its
-    midpoint in time added; the floor's gap below the samples shrinks with the interval), up to
+    certified floor is still short of them: each interval whose floor is short is halved (the
+    instant halfway along its line added: :meth:`Path.halfway`; the floor's gap below the samples
+    shrinks with the interval's travel), up to
     ``refinements`` times. Every interval lies on one straight segment of this boom and one row
     interval of each moving other (the instants hold every segment's and row's ends), so a half's
     drift bound is its own chord's travel. The last check is returned: :meth:`Clearance.certified`
@@ -272,7 +273,7 @@ def certify_path(rig: Rig, index: int, path: Path, margin: Mapping[str, float], 
         short = torch.zeros(t.shape[0] - 1, dtype=torch.bool)
         for key, x in values.items():  # samples keep their margins here: only the floor between can be short
             short |= 0.5 * (x[1:] + x[:-1] - drift[key]) < margin[kind_of(key)]
-        mid = 0.5 * (t[1:] + t[:-1])[short]
+        mid = path.halfway(t[:-1][short], t[1:][short])
         q_mid = path.positions(mid)
         at_mid = {j: o.at(mid + t0) for j, o in timed.items()}
         v_mid = clearances_at(rig, index, q_mid, at_mid)
@@ -313,21 +314,60 @@ def certify_straight_moves(rig: Rig, index: int, qa: torch.Tensor, qb: torch.Ten
                            margin: Mapping[str, float], kinds: tuple[str, ...] = ("self", "tunnel"),
                            others: Mapping | None = None, resolution: float = RESOLUTION,
                            refinements: int = REFINEMENTS) -> StraightChecks:
-    """:func:`check_straight_moves` of ``kinds``, each move whose samples all keep ``margin`` but whose
-    floor is short of it checked again at half the resolution, up to ``refinements`` times (only
-    those moves: one batch per halving). The result holds each move's finest check."""
+    """:func:`check_straight_moves`, then, for the moves whose samples of ``kinds`` all keep
+    ``margin`` but whose floor is short of it, each short interval halved (its midpoint in s added),
+    up to ``refinements`` times: all those moves in one batch per halving, only the short intervals
+    (a half's drift bound is its own share of the move's travel bound)."""
     checks = check_straight_moves(rig, index, qa, qb, others, resolution)
     least = {k: v.clone() for k, v in checks.least.items()}
     floor = {k: v.clone() for k, v in checks.floor.items()}
     out = StraightChecks(least, floor)
-    for _ in range(refinements):
-        todo = torch.nonzero(out.clear(kinds, margin) & ~out.certified(kinds, margin)).flatten()
-        if not len(todo):
+    todo = torch.nonzero(out.clear(kinds, margin) & ~out.certified(kinds, margin)).flatten()
+    if not len(todo) or refinements < 1:
+        return out
+    me = rig.booms[index]
+    standing = {j: o.q[:1] for j, o in others_of(rig, index, others).items()}
+    frames_o = {f"boom {rig.names[j]}": (j, rig.booms[j].frames(q)) for j, q in standing.items()}
+    a, step = qa[todo].to(torch.float64), (qb[todo] - qa[todo]).to(torch.float64)
+    R = travel(step, lever_arms(me.boom))
+    n = torch.ceil(R / resolution).clamp_min(1).long()
+    which = torch.repeat_interleave(torch.arange(len(todo)), n + 1)
+    first = torch.cumsum(n + 1, 0) - (n + 1)
+    s = (torch.arange(which.shape[0]) - first[which]).to(torch.float64) / n[which].to(torch.float64)
+
+    def values(w: torch.Tensor, x: torch.Tensor) -> dict[str, torch.Tensor]:
+        with torch.inference_mode():
+            f = me.frames(a[w] + x[:, None] * step[w])
+            c = me.safety.clearances_from_frames(f)
+            out = {"self": c["self"], "tunnel": torch.stack([c[k] for k in SURFACES]).amin(0)}
+            for key, (j, fj) in frames_o.items():
+                if key in kinds:
+                    pair = rig.pair(min(index, j), max(index, j))
+                    out[key] = pair.clearance(f, fj) if index < j else pair.clearance(fj, f)
+        return {k: v for k, v in out.items() if k in kinds}
+
+    vals = values(which, s)
+    drift = {k: 2.0 if k == "self" else 1.0 for k in kinds}
+    for _ in range(refinements + 1):
+        same = which[1:] == which[:-1]
+        width = R[which[1:]] * (s[1:] - s[:-1])
+        mids = {k: 0.5 * (x[1:] + x[:-1] - drift[k] * width) for k, x in vals.items()}
+        short = torch.zeros_like(same)
+        for k, m in mids.items():
+            short |= same & (m < _margin(margin, k))
+        if not bool(short.any()) or _ == refinements:
             break
-        resolution /= 2
-        finer = check_straight_moves(rig, index, qa[todo], qb[todo], others, resolution)
-        for k in least:
-            least[k][todo], floor[k][todo] = finer.least[k], finer.floor[k]
+        w_new, s_new = which[1:][short], 0.5 * (s[1:] + s[:-1])[short]
+        v_new = values(w_new, s_new)
+        order = torch.argsort(torch.cat([which, w_new]).to(torch.float64) * 2 + torch.cat([s, s_new]))
+        which, s = torch.cat([which, w_new])[order], torch.cat([s, s_new])[order]
+        vals = {k: torch.cat([vals[k], v_new[k]])[order] for k in vals}
+    P = len(todo)
+    for k, x in vals.items():
+        lo = torch.full((P,), math.inf, dtype=torch.float64).scatter_reduce(0, which, x, "amin")
+        m = torch.where(same, torch.minimum(mids[k], torch.minimum(x[1:], x[:-1])), torch.full_like(mids[k], math.inf))
+        f = torch.full((P,), math.inf, dtype=torch.float64).scatter_reduce(0, which[1:], m, "amin")
+        least[k][todo], floor[k][todo] = lo, torch.minimum(f, lo)
     return out
 
 
