@@ -201,6 +201,10 @@ def test_book_refines_a_short_floor_and_fails_it_without_refinement_or_detours(d
             assert plain.status[b, u, v] == FAILED and "certified floor short" in plain.reason[(b, u, v)]
     kept = [(u, v) for (u, v), s in zip(uv, short, strict=True) if s and refined.status[b, u, v] == STRAIGHT]
     assert kept  # refinement certified some of them
+    fine = check_straight_moves(rig, b, qa, qb, resolution=0.002)  # independent: the floors bound its samples
+    for k, (u, v) in enumerate(uv):
+        for kind in kinds:
+            assert refined.floor[kind][b, u, v] <= float(fine.least[kind][k]) + 1e-12
     for u, v in zip(*np.nonzero(refined.status[b] == STRAIGHT), strict=True):
         assert refined.floor["self"][b, u, v] >= 0 and refined.floor["tunnel"][b, u, v] >= 0
     floors = refined.floors(routes)
