@@ -2,7 +2,8 @@
 
     python -m pipeline.schedule plan=data/plans/demo_face.csv rig=twin
     python -m pipeline.schedule plan=round_42.xml rig=trio out=rounds/
-    python -m pipeline.schedule plan=... rig=twin round.time_limit_s=30 'round.precedence=[[R1,C1]]'
+    python -m pipeline.schedule plan=... rig=twin round.solution_limit=2000 'round.precedence=[[R1,C1]]'
+    python -m pipeline.schedule plan=... rig=twin schedule.strict=true   # exit 1 on an unsafe round
 
 Reads the plan (CSV or IREDES), solves every hole by every boom (the reach table, the hybrid with the
 other booms at park: :mod:`pipeline.plans.reach`), plans the round (:mod:`pipeline.round.schedule`:
@@ -18,6 +19,11 @@ and its baselines, and writes beside the plan (or into ``out``, a folder or a ``
 The set is written into a private folder and published under one lock (:func:`pipeline.core.io.publish`),
 so an interrupt (Ctrl-C, SIGTERM) leaves the previous set or none, never half of one; the MLflow run
 ends KILLED (:func:`pipeline.tracking.runs.stage_run`).
+
+The set reproduces: planning is limited by counts (conf/round), and wall-clock seconds (planning,
+reach table) are MLflow metrics (``timing.*``), not in the JSON. A round that is not safe to run as it
+is (conflicts left, a move not certified clear, the one-boom fallback) is written and warned about;
+with ``schedule.strict=true`` the stage then exits 1, as ``solve strict=true`` does.
 """
 
 from __future__ import annotations
@@ -69,6 +75,7 @@ class ScheduleSettings:
     bench_faces: list = field(default_factory=lambda: ["demo", 50, 100, 150])
     bench_rigs: list = field(default_factory=lambda: ["single", "twin", "trio"])
     bench_seed: int = 0
+    strict: bool = False  # true: exit 1 (after writing the set) on conflicts left, failed moves or the fallback
 
 
 def _progress(enabled: bool):
@@ -129,8 +136,9 @@ def run(cfg: DictConfig) -> dict:
         finally:
             close()
         table = with_invalid_rows(res.round, plan)
-        summary = {"plan": str(plan_path), **res.summary, "reach_solve_s": reach.summary()["solve_s"],
-                   "invalid_rows": len({p.row for p in plan.problems})}
+        summary = {"plan": str(plan_path), **res.summary, "invalid_rows": len({p.row for p in plan.problems})}
+        # wall-clock seconds go to MLflow only: the round JSON is DVC-tracked and must reproduce
+        timings = {**res.timings, "reach_solve_s": reach.summary()["solve_s"]}
         collars = plan.holes[COLLAR].to_numpy(float)
         writers = {"round": lambda p: write_csv(spreadsheet_safe(table), p),
                    "trajectory": lambda p: write_csv(res.trajectory, p)}
@@ -152,7 +160,7 @@ def run(cfg: DictConfig) -> dict:
 
             writers["replay"] = lambda p: write_text(replay_html(res.trajectory, rig, collars,
                                                                  settings.replay_frames), p)
-        mlrun.log_metrics(metrics(summary))
+        mlrun.log_metrics({**metrics(summary), **{f"timing.{k}": v for k, v in timings.items()}})
         mlrun.log_table(table, "round.json")
         mlrun.log_table(res.trajectory, "trajectory.json")
 
@@ -164,11 +172,31 @@ def run(cfg: DictConfig) -> dict:
         summary = write_round_set(files, summary, writers, log_staged)
     log.info("round of rig %s: %d holes, makespan %.1f s (lower bound %.1f s, naive %s, nearest %s), planned in "
              "%.1f s -> %s", rig.name, summary["holes_drilled"], summary["makespan_s"], summary["lower_bound_s"],
-             summary["naive_makespan_s"], summary["nearest_makespan_s"], summary["planning_s"], files["round"])
+             summary["naive_makespan_s"], summary["nearest_makespan_s"], timings["planning_s"], files["round"])
     if summary["status"] != "complete":
         log.warning("round of rig %s: %s (%d of %d holes drilled; the round table says why)", rig.name,
                     summary["status"], summary["holes_drilled"], len(plan))
+    unsafe = round_problems(summary)
+    for m in summary.get("moves_not_clear", []):
+        log.warning("move not certified clear (event move_unclear in %s): boom %s %s -> %s: %s",
+                    files["trajectory"].name, m["boom"], m["from"], m["to"], m["reason"])
+    if unsafe and settings.strict:
+        raise SystemExit(f"schedule.strict: {'; '.join(unsafe)} (see {files['json']})")
+    for line in unsafe:
+        log.warning("round: %s", line)
     return summary
+
+
+def round_problems(summary: dict) -> list[str]:
+    """What makes a written round unsafe to run as it is: what ``schedule.strict`` exits 1 for."""
+    out = []
+    if summary.get("conflicts_left"):
+        out.append(f"{summary['conflicts_left']} boom-boom conflict(s) left")
+    if summary.get("moves_failed"):
+        out.append(f"{summary['moves_failed']} move(s) not certified clear (move_unclear)")
+    if summary.get("sequential_fallback"):
+        out.append("the one-boom-at-a-time fallback was used")
+    return out
 
 
 def run_benchmark(cfg: DictConfig, settings: ScheduleSettings) -> dict:
@@ -181,6 +209,7 @@ def run_benchmark(cfg: DictConfig, settings: ScheduleSettings) -> dict:
     hybrid = parse(HybridSettings, cfg.solver, "solver")
     tracking = TrackingSettings.from_config(cfg.tracking)
     folder = require_writable(project_path(cfg.paths.data) / "benchmark", "paths.data/benchmark")
+    box = cfg.holes.sup.get("box")  # the stage's working box: the benchmark's reach tables use it too
     (folder / "rounds").mkdir(exist_ok=True)
     source = network_source(project_path(cfg.paths.data), settings.network, settings.model_uri)
 
@@ -189,7 +218,7 @@ def run_benchmark(cfg: DictConfig, settings: ScheduleSettings) -> dict:
     with stage_run(tracking, "schedule-benchmark", {"stage": "schedule", "mode": "benchmark"}) as mlrun:
         mlrun.log_params({"schedule": asdict(settings), "round": as_dict(cfg.round), "solver": as_dict(cfg.solver)})
         table = round_benchmark(settings.bench_faces, rigs, hybrid, round_settings, first_start, settings.bench_seed,
-                                lambda m: log.info("%s", m), folder / "rounds")
+                                lambda m: log.info("%s", m), folder / "rounds", None if box is None else as_dict(box))
         write_csv(table, folder / "round_benchmark.csv")
         write_text(markdown(table), folder / "round_benchmark.md")
         mlrun.log_table(table, "round_benchmark.json")

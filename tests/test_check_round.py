@@ -17,7 +17,7 @@ from pipeline import demo_face, schedule
 from pipeline.core.config import PROJECT_ROOT
 
 SCRIPT = PROJECT_ROOT / "scripts" / "check_round.py"
-FAST = ["rig=twin", "schedule.network=null", "round.time_limit_s=0.5", "round.reopt_rounds=2",
+FAST = ["rig=twin", "schedule.network=null", "round.solution_limit=20", "round.reopt_rounds=2",
         "schedule.figures=false", "schedule.replay=false", "schedule.baselines=false", "runtime.progress=false"]
 
 

@@ -19,7 +19,7 @@ from pipeline.motion.path import Path, unwrapped
 from pipeline.motion.timing import move_time, rig_motions
 from pipeline.plans.demo_face import demo_face
 from pipeline.plans.reach import reach_table, rig_solvers
-from pipeline.round.detours import RETRACT, STRAIGHT, MoveBook
+from pipeline.round.detours import FAILED, RETRACT, STRAIGHT, MoveBook
 from pipeline.round.instance import Instance, RoundSettings, drill_phases
 from pipeline.round.oracle import _positions
 from pipeline.round.schedule import round_instance
@@ -84,7 +84,7 @@ def _unclear_move(rig, inst, oracle):
 def test_book_detours_a_move_that_breaks_clearance_and_the_oracle_follows_it(demo):
     rig, inst, oracle = demo
     b, u, v = _unclear_move(rig, inst, oracle)
-    book = MoveBook(oracle, inst.n_holes)
+    book = MoveBook(oracle, inst.n_holes, RoundSettings())
     routes = [[] for _ in range(inst.n_booms)]
     routes[b] = [u, v]
     new = book.ensure(inst, routes)
@@ -129,7 +129,7 @@ def test_book_detours_a_move_that_breaks_clearance_and_the_oracle_follows_it(dem
 
 def test_book_keeps_clear_moves_straight(demo):
     rig, inst, oracle = demo
-    book = MoveBook(oracle, inst.n_holes)
+    book = MoveBook(oracle, inst.n_holes, RoundSettings())
     for b in range(inst.n_booms):
         uv = _moves(inst, b, 12)
         q = oracle.joints[b]
@@ -171,3 +171,68 @@ def test_sweep_strips_balance_drilling_and_keep_the_booms_apart():
             key = -direction * y[r]
             band = np.floor((key - (-direction * y).min()) / 1.0)
             assert (np.diff(band) >= 0).all()
+
+
+def test_book_refines_a_short_floor_and_fails_it_without_refinement_or_detours(demo):
+    """Moves checked every 0.2 m of point travel: those whose samples are clear but whose floor is
+    short (the premise) are refined and kept straight with refinements, and without refinement nor
+    detours they are failed, with the reason. Every move the book keeps straight has its certified
+    floors >= the margins."""
+    from pipeline.motion.checks import check_straight_moves
+
+    rig, inst, oracle = demo
+    b = 0
+    uv = _moves(inst, b, 40)
+    q = oracle.joints[b]
+    qa = q[torch.as_tensor(uv[:, 0])]
+    qb = unwrapped(qa, q[torch.as_tensor(uv[:, 1])], oracle.limits[b])
+    coarse = check_straight_moves(rig, b, qa, qb, resolution=0.2)
+    kinds = ("self", "tunnel")
+    short = (coarse.clear(kinds) & ~coarse.certified(kinds)).numpy()
+    assert short.any()  # the premise
+    routes = [[] for _ in range(inst.n_booms)]
+    routes[b] = [int(h) for h in np.unique(uv)]
+    refined = MoveBook(oracle, inst.n_holes, RoundSettings(sample_m=0.2, refinements=6, detours=False))
+    refined.ensure(inst, routes)
+    plain = MoveBook(oracle, inst.n_holes, RoundSettings(sample_m=0.2, refinements=0, detours=False))
+    plain.ensure(inst, routes)
+    for (u, v), s in zip(uv, short, strict=True):
+        if s:
+            assert plain.status[b, u, v] == FAILED and "certified floor short" in plain.reason[(b, u, v)]
+    kept = [(u, v) for (u, v), s in zip(uv, short, strict=True) if s and refined.status[b, u, v] == STRAIGHT]
+    assert kept  # refinement certified some of them
+    fine = check_straight_moves(rig, b, qa, qb, resolution=0.002)  # independent: the floors bound its samples
+    for k, (u, v) in enumerate(uv):
+        for kind in kinds:
+            assert refined.floor[kind][b, u, v] <= float(fine.least[kind][k]) + 1e-12
+    for u, v in zip(*np.nonzero(refined.status[b] == STRAIGHT), strict=True):
+        assert refined.floor["self"][b, u, v] >= 0 and refined.floor["tunnel"][b, u, v] >= 0
+    floors = refined.floors(routes)
+    assert floors["self"] is not None and floors["tunnel"] is not None
+
+
+def test_failed_moves_are_marked_move_unclear_in_the_trajectory(demo):
+    """Detours off: a move that breaks clearance is failed, and its rows in the trajectory file are
+    ``move_unclear``, every other move's ``move``."""
+    from pipeline.round.tables import trajectory_table
+    from pipeline.round.timeline import resolve
+
+    rig, inst, oracle = demo
+    b, u, v = _unclear_move(rig, inst, oracle)
+    routes = [[] for _ in range(inst.n_booms)]
+    routes[b] = [u, v]
+    book = MoveBook(oracle, inst.n_holes, RoundSettings(detours=False))
+    timed = book.ensure(inst, routes)
+    counts, failed = book.kinds(routes)
+    assert (b, u, v) in failed and counts["failed"] == len(failed) and "round.detours=false" in book.reason[(b, u, v)]
+    tl = resolve(timed, routes, oracle)
+    traj = trajectory_table(timed, tl, oracle, rig.booms[0].boom.joint_names, failed)
+    rows = traj[traj["boom"] == rig.names[b]].reset_index(drop=True)
+    ev = rows["event"].tolist()
+    assert "move_unclear" in ev
+    # the rows from hole u's retract to hole v's collar are the failed move's
+    i_ret = max(i for i, e in enumerate(ev) if e == "retract" and rows["hole_id"][i] == inst.hole_ids[u])
+    i_col = ev.index("collar", i_ret)
+    assert set(ev[i_ret + 1:i_col]) == {"move_unclear"}
+    n_unclear = sum(e == "move_unclear" for e in ev)
+    assert n_unclear >= i_col - i_ret - 1

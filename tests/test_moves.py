@@ -40,7 +40,7 @@ THROUGH_A = [13.654, 11.363, 3.4897, 144.3, 10.614, 17.196, 131.379, 1.3758]
 THROUGH_B = [-0.076, 14.51, 3.8818, -169.514, -57.565, 17.05, -178.158, 2.7767]
 # Inside R's standing place at park (boom-boom clearance about -0.43 m), clear of tunnel and self.
 INTO_R = [-27.488, -5.978, 3.2858, 59.617, -23.335, -5.875, -116.992, 1.4645]
-PLANNER = PlannerSettings(time_s=10.0, simplify_s=0.5, seed=1)
+PLANNER = PlannerSettings(iterations=20000, simplify_steps=40, seed=1)  # counts: reproducible
 
 
 @pytest.fixture(scope="module")
@@ -292,3 +292,47 @@ def test_trio_middle_boom_is_checked_against_both_neighbours(safety, limits, jum
     assert float(trio.boom_clearance(m, swing, trio.index("L"), trio.booms[0].park)) < 0  # the premise
     move = plan_move(trio, "M", park, swing, limits, planner=PLANNER)
     assert move.kind == "failed" and "straight: boom L" in move.reason and "refused: the end qb" in move.reason
+
+
+def test_a_move_clear_at_its_samples_but_not_certified_is_refined_then_taken(rig, limits, jumbo8):
+    """Sampled every 0.2 m of point travel, a clear straight move's samples are all clear but the
+    certified floor between them is not (the premise). Halving the resolution certifies it (its floors
+    a lower bound of an independent 2 mm sampling), so plan_move takes the straight line; without
+    refinement it refuses it, naming the short floor, though no sample broke."""
+    from pipeline.motion.checks import certify_path, check_path, margins
+    from pipeline.motion.path import Path, unwrapped
+
+    a, b = _q(jumbo8, ARCH_A), _q(jumbo8, THROUGH_A)
+    path = Path.through(torch.stack([a, unwrapped(a, b, limits)]), limits)  # q4, q7 the short way, as plan_move
+    m = margins(0.001)
+    coarse = check_path(rig, 0, path, resolution=0.2)
+    assert coarse.clear and coarse.sampled_at_least(m) and not coarse.certified(m), coarse  # the premise
+    fine = certify_path(rig, 0, path, m, resolution=0.2, refinements=6)
+    assert fine.certified(m) and fine.instants > coarse.instants
+    t, q = _samples(path.waypoints, limits, _crude_lever(jumbo8))
+    independent = _oracle(rig, 0, t, q, _standing(rig, 1))
+    for kind in ("self", "tunnel", "boom"):
+        assert independent[kind] >= fine.floors[kind] - 1e-12 and fine.floors[kind] >= m[kind]
+    taken = plan_move(rig, "L", a, b, limits, kinds=("straight",), resolution=0.2,
+                      planner=PlannerSettings(refinements=6))
+    assert taken.kind == "straight" and taken.clearance.certified(m)
+    refused = plan_move(rig, "L", a, b, limits, kinds=("straight",), resolution=0.2,
+                        planner=PlannerSettings(refinements=0))
+    assert refused.kind == "failed" and "certified floor short" in refused.reason, refused.reason
+
+
+def test_ompl_is_seeded_and_limited_by_counts(rig, limits, jumbo8):
+    """The same seed and counts give the same planned path, also after a search with another seed
+    (OMPL's samplers are seeded anew before each search); one iteration finds nothing and says so."""
+    a, b = _q(jumbo8, WALL_A), _q(jumbo8, WALL_B)
+
+    def planned(seed, iterations=20000):
+        return plan_move(rig, "L", a, b, limits, kinds=("planned",),
+                         planner=PlannerSettings(iterations=iterations, simplify_steps=40, seed=seed))
+
+    one, two = planned(3), planned(3)
+    assert one.kind == "planned" and torch.equal(one.path.waypoints, two.path.waypoints)
+    planned(5)
+    assert torch.equal(planned(3).path.waypoints, one.path.waypoints)
+    none = planned(3, iterations=1)
+    assert none.kind == "failed" and "1 iterations" in none.reason, none.reason

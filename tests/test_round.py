@@ -29,7 +29,7 @@ from pipeline.round.timeline import resolve, scan, simulate
 
 D = torch.float64
 r = math.radians
-FAST = RoundSettings(time_limit_s=0.5, reopt_rounds=3)
+FAST = RoundSettings(solution_limit=60, reopt_rounds=3)  # counts: reproducible
 SPEC_DRILL = lambda L: 10.0 + L / 2.5 * 60.0 + L / 1.0  # noqa: E731  spec section 7, by hand
 
 
@@ -117,7 +117,8 @@ def test_precedence_config_names_unknown_holes():
     with pytest.raises(ConfigError, match="no hole 'x'"):
         precedence_indices([["a", "x"]], ["a", "b"])
     s = parse_round(load_group_file("round", "default"))
-    assert s.time_limit_s > 0 and s.precedence == []
+    assert s.time_limit_s is None and s.budget_s is None and s.solution_limit > 0 and s.precedence == []
+    assert s.reproducible  # counts only by default: no wall-time limit
     with pytest.raises(ConfigError, match="time_limit_s"):
         parse_round({"time_limit_s": 0})
     with pytest.raises(ConfigError, match="precedence"):
@@ -134,7 +135,7 @@ def test_lower_bound_never_exceeds_makespan(seed):
            for a in range(B) for b in range(a + 1, B)}
     oracle = SetOracle(bad)
     lb = lower_bound(inst)
-    plan = plan_round(inst, oracle, RoundSettings(time_limit_s=0.2, reopt_rounds=2))
+    plan = plan_round(inst, oracle, RoundSettings(solution_limit=30, reopt_rounds=2))
     for tl in (plan.timeline, baseline(inst, oracle, "naive", FAST), baseline(inst, oracle, "nearest", FAST)):
         assert tl.conflicts_left == 0 and scan(tl, oracle) is None
         assert lb <= tl.makespan + 1e-9

@@ -26,7 +26,7 @@ from pipeline.motion.timing import motion_from_config
 
 D = torch.float64
 SPEC_DRILL = lambda L: 10.0 + L / 2.5 * 60.0 + L / 1.0  # noqa: E731  spec section 7, by hand
-FAST = ["rig=twin", "schedule.network=null", "round.time_limit_s=0.5", "round.reopt_rounds=2",
+FAST = ["rig=twin", "schedule.network=null", "round.solution_limit=50", "round.reopt_rounds=2",
         "schedule.replay_frames=8", "runtime.progress=false"]
 COLS = ["hole_id", "collar_x", "collar_y", "collar_z", "toe_x", "toe_y", "toe_z"]
 
@@ -156,7 +156,7 @@ def test_a_signal_leaves_no_half_written_output_and_no_running_run(face_plan, si
     (tmp / f"{name}_round.csv").write_text("the previous set\n")
     cmd = [sys.executable, "-m", "pipeline.schedule", "experiment=tiny", f"paths.data={tmp}/data",
            f"tracking.uri=sqlite:///{tmp}/{name}.db", f"tracking.artifact_root={tmp}/{name}_art", *FAST,
-           "round.time_limit_s=30", f"plan={plan}", f"hydra.run.dir={tmp}/hydra"]
+           "round.solution_limit=1000000", f"plan={plan}", f"hydra.run.dir={tmp}/hydra"]
     proc = subprocess.Popen(cmd, cwd=PROJECT_ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             preexec_fn=_ignore_sigint)
     deadline = time.monotonic() + 180
@@ -280,3 +280,54 @@ def test_motion_and_boom_model_settings_reach_the_round(small_round, make_cfg, j
         want = torch.tensor(collars.loc[rows["hole_id"]].to_numpy(), dtype=D) - torch.tensor([0, base_y, 0], dtype=D)
         assert (model.tool_pose(q)[0] - want).norm(dim=-1).max() < 2e-5, name
         assert (jumbo8.tool_pose(q)[0] - want).norm(dim=-1).min() > 0.005, name
+
+
+def test_small_round_json_reports_certified_floors_at_least_the_margins(small_round):
+    tmp, _, summary, _ = small_round
+    on_disk = json.loads((tmp / "small_round.json").read_text())
+    floors, margins = on_disk["certified_floor_m"], on_disk["margin_m"]
+    assert set(floors) == set(margins) == {"self", "tunnel", "boom"}
+    for kind in floors:
+        assert floors[kind] is not None and floors[kind] >= margins[kind], (kind, floors, margins)
+    # the boom-boom floor: the oracle's 2 traj_tol_m wherever a boom moves, never above a measured clearance
+    assert floors["boom"] <= 0.002 + 1e-12 and floors["boom"] <= summary["min_boom_clearance_m"] - 0.3 + 1e-9
+    assert on_disk["moves_failed"] == 0 and on_disk["reproducible"] is True
+    assert "planning_s" not in on_disk and "reach_solve_s" not in on_disk  # wall time: MLflow only
+
+
+def test_two_runs_of_the_same_command_write_the_same_bytes(face_plan, make_cfg):
+    """Counts, not wall time, limit the planning: every output of a second run, into the same place,
+    has the first run's MD5 (round and trajectory CSV, JSON, both PNGs, the replay HTML)."""
+    from pipeline.core.io import file_md5
+
+    tmp, holes = face_plan
+    plan = tmp / "twice.csv"
+    holes.iloc[1::9].reset_index(drop=True).to_csv(plan, index=False)
+    names = [f"twice{s}" for s in ("_round.csv", "_trajectory.csv", "_round.json", "_round_face.png",
+                                   "_round_gantt.png", "_round_replay.html")]
+    runs = []
+    for _ in range(2):
+        schedule.run(make_cfg(tmp, *FAST, f"plan={plan}"))
+        runs.append({n: file_md5(tmp / n) for n in names})
+    assert runs[0] == runs[1]
+
+
+def test_strict_exits_1_on_a_round_with_failed_moves_and_marks_them(face_plan, make_cfg):
+    """Detours off and a self margin no move keeps: every move fails certification. The set is still
+    written (as solve does), the trajectory marks the failed moves move_unclear, the JSON counts them,
+    and strict exits 1 naming them; without strict the same round exits 0 with a warning."""
+    tmp, holes = face_plan
+    plan = tmp / "unsafe.csv"
+    holes.iloc[2::12].reset_index(drop=True).to_csv(plan, index=False)
+    planted = [*FAST, f"plan={plan}", "round.detours=false", "round.self_margin_m=5.0", "schedule.figures=false",
+               "schedule.replay=false"]
+    with pytest.raises(SystemExit, match="schedule.strict: .*not certified clear") as exit_info:
+        schedule.run(make_cfg(tmp, *planted, "schedule.strict=true"))
+    assert exit_info.value.code != 0
+    s = json.loads((tmp / "unsafe_round.json").read_text())
+    traj = pd.read_csv(tmp / "unsafe_trajectory.csv", keep_default_na=False)
+    assert s["moves_failed"] == s["moves"]["failed"] > 0 and len(s["moves_not_clear"]) == s["moves_failed"]
+    assert s["certified_floor_m"]["self"] < s["margin_m"]["self"] == 5.0
+    assert (traj["event"] == "move_unclear").any() and not (traj["event"] == "move").any()
+    again = schedule.run(make_cfg(tmp, *planted))  # strict off: written, warned, exit 0
+    assert again["moves_failed"] == s["moves_failed"]

@@ -26,6 +26,12 @@ travel, and within ``L (1 - x)`` of ``c_{k+1}``). :attr:`Clearance.floor` is the
 over the motion: a certified lower bound of the smallest clearance at *every* instant, not only the
 checked ones (it needs straight motion between instants, which the instants of a :class:`Path` and
 of a :class:`Timed` path's rows give).
+
+Acceptance. A motion is taken (by :func:`pipeline.motion.moves.plan_move` and the round's move book)
+only when each kind's floor (:attr:`Clearance.floors`: self, tunnel, boom) is at least its margin
+(:func:`margins`). The floor's gap below the samples shrinks with the resolution, so where every
+sample keeps its margin but a floor does not, :func:`certify_path` and :func:`certify_straight_moves`
+check again at half the resolution, up to :data:`REFINEMENTS` times.
 """
 
 from __future__ import annotations
@@ -43,6 +49,28 @@ from pipeline.geometry.tunnel import SURFACES
 from pipeline.motion.path import Path, Timed, distinct, travel
 
 RESOLUTION = 0.01  # m: no boom point moves more than this between two checks (issue 19)
+REFINEMENTS = 4  # halvings of the resolution tried where a floor is short of its margin (16x denser at most)
+KINDS = ("self", "tunnel", "boom")  # the kinds of clearance a floor and a margin are given for
+
+
+def margins(tolerance: float, others_move: bool = False, self_m: float = 0.0, tunnel_m: float = 0.0
+            ) -> dict[str, float]:
+    """The certified floor each kind must keep so that the trajectory file is clear too, plus any
+    extra ``self_m``, ``tunnel_m`` (m) a caller asks for.
+
+    The file's rows lie on the planned joint-space segments (:meth:`pipeline.motion.path.Path.rows`:
+    both sides are ``start + s step``, rows at every waypoint), so linear interpolation between rows
+    passes through the plan's own configurations, only at other times. A boom's self and tunnel
+    clearances, and its distance to a boom *standing* still, depend on its configuration alone: the
+    file keeps the plan's floor, margin 0. A distance to a *moving* boom depends on timing; each
+    boom's rows stay within ``tolerance`` of its plan at every point, so it needs ``2 tolerance``
+    (the oracle's floor, :mod:`pipeline.round.oracle`)."""
+    return {"self": float(self_m), "tunnel": float(tunnel_m), "boom": 2 * tolerance if others_move else 0.0}
+
+
+def kind_of(key: str) -> str:
+    """The kind of a clearance key: ``self``, ``tunnel`` (wall, ground, arch, tunnel) or ``boom``."""
+    return "self" if key == "self" else "boom" if key.startswith("boom") else "tunnel"
 
 
 def lever_arms(boom: Boom) -> torch.Tensor:
@@ -106,10 +134,24 @@ class Clearance:
     first_violation: float | None = None  # seconds from the motion's start, None when clear
     broken: str = ""  # what broke first: "self", "wall", "ground", "arch" or "boom <name>"
     floor: float = -math.inf  # certified lower bound of every clearance at every instant (module doc)
+    floors: dict[str, float] | None = None  # the floor per kind (KINDS); None when no drift was given
 
     @property
     def clear(self) -> bool:
         return self.first_violation is None
+
+    def short(self, margin: Mapping[str, float]) -> dict[str, float]:
+        """The kinds whose certified floor is below ``margin[kind]``, with their floor (all when unknown)."""
+        floors = self.floors or {k: -math.inf for k in KINDS}
+        return {k: f for k, f in floors.items() if f < margin[k]}
+
+    def certified(self, margin: Mapping[str, float]) -> bool:
+        """Clear at every instant by at least ``margin`` of each kind (not only at the checked ones)."""
+        return self.clear and not self.short(margin)
+
+    def sampled_at_least(self, margin: Mapping[str, float]) -> bool:
+        """Every sampled clearance >= its kind's margin: a finer sampling may certify the motion."""
+        return self.self >= margin["self"] and self.tunnel >= margin["tunnel"] and self.boom >= margin["boom"]
 
     def as_dict(self) -> dict[str, float]:
         return {"self": self.self, "tunnel": self.tunnel, "boom": self.boom}
@@ -156,13 +198,30 @@ def summarise(values: dict[str, torch.Tensor], t: torch.Tensor, drift: dict[str,
     if bool(bad.any()):
         k = int(torch.nonzero(bad)[0, 0])
         first, broken = float(t[k]), keys[int(torch.argmin(worst[:, k]))]
-    floor = -math.inf
+    floor, floors = -math.inf, None
     if drift is not None:
-        lo = torch.minimum(worst[:, 1:], worst[:, :-1])
-        mid = 0.5 * (worst[:, 1:] + worst[:, :-1] - torch.stack([drift[k] for k in keys]))
-        floor = float(torch.minimum(lo, mid).min()) if t.shape[0] > 1 else float(worst.min())
+        if t.shape[0] > 1:
+            lo = torch.minimum(worst[:, 1:], worst[:, :-1])
+            mid = 0.5 * (worst[:, 1:] + worst[:, :-1] - torch.stack([drift[k] for k in keys]))
+            per_key = torch.minimum(lo, mid).amin(1)
+        else:
+            per_key = worst.amin(1)
+        floor = float(per_key.min())
+        floors = {k: math.inf for k in KINDS}
+        for key, f in zip(keys, per_key.tolist(), strict=True):
+            floors[kind_of(key)] = min(floors[kind_of(key)], f)
     return Clearance(float(values["self"].min()), float(tunnel.min()),
-                     float(boom.min()) if boom is not None else math.inf, int(t.shape[0]), first, broken, floor)
+                     float(boom.min()) if boom is not None else math.inf, int(t.shape[0]), first, broken, floor,
+                     floors)
+
+
+def _drift(rig: Rig, index: int, q: torch.Tensor, at: Mapping[int, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """Each clearance's drift bound over each interval ``(K - 1,)`` of instants (module doc)."""
+    own = travel(q[1:] - q[:-1], lever_arms(rig.booms[index].boom))
+    drift = {"self": 2 * own, **{k: own for k in SURFACES}}
+    for j, qj in at.items():
+        drift[f"boom {rig.names[j]}"] = own + travel(qj[1:] - qj[:-1], lever_arms(rig.booms[j].boom))
+    return drift
 
 
 def check(rig: Rig, index: int, t: torch.Tensor, q: torch.Tensor, others: Mapping | None = None,
@@ -172,24 +231,57 @@ def check(rig: Rig, index: int, t: torch.Tensor, q: torch.Tensor, others: Mappin
     if q.ndim != 2 or t.shape != q.shape[:1]:
         raise InputError(f"check: expected t (K,) and q (K, n), got {tuple(t.shape)} and {tuple(q.shape)}")
     at = {j: o.at(t + t0) for j, o in others_of(rig, index, others).items()}
-    own = travel(q[1:] - q[:-1], lever_arms(rig.booms[index].boom))
-    drift = {"self": 2 * own, **{k: own for k in SURFACES}}
-    for j, qj in at.items():
-        drift[f"boom {rig.names[j]}"] = own + travel(qj[1:] - qj[:-1], lever_arms(rig.booms[j].boom))
-    return summarise(clearances_at(rig, index, q, at), t, drift)
+    return summarise(clearances_at(rig, index, q, at), t, _drift(rig, index, q, at))
+
+
+def _instants(rig: Rig, index: int, path: Path, timed: Mapping[int, Timed], t0: float, resolution: float):
+    t = path.check_instants(lever_arms(rig.booms[index].boom), resolution)
+    for j, o in timed.items():
+        if o.t.shape[0] > 1:  # moving: add its own instants within the window
+            t = torch.cat([t, o.instants(lever_arms(rig.booms[j].boom), resolution, t0, t0 + path.duration) - t0])
+    return distinct(t)
 
 
 def check_path(rig: Rig, index: int, path: Path, others: Mapping | None = None, t0: float = 0.0,
                resolution: float = RESOLUTION) -> Clearance:
     """:func:`check` of a planned path at instants where no point of this boom, nor of any moving
     other boom, moves more than ``resolution`` between two checks (the module's bound)."""
-    timed = others_of(rig, index, others)
-    t = path.check_instants(lever_arms(rig.booms[index].boom), resolution)
-    for j, o in timed.items():
-        if o.t.shape[0] > 1:  # moving: add its own instants within the window
-            t = torch.cat([t, o.instants(lever_arms(rig.booms[j].boom), resolution, t0, t0 + path.duration) - t0])
-    t = distinct(t)
+    t = _instants(rig, index, path, others_of(rig, index, others), t0, resolution)
     return check(rig, index, t, path.positions(t), others, t0)
+
+
+def certify_path(rig: Rig, index: int, path: Path, margin: Mapping[str, float], others: Mapping | None = None,
+                 t0: float = 0.0, resolution: float = RESOLUTION, refinements: int = REFINEMENTS) -> Clearance:
+    """:func:`check_path`, refined while the motion is clear at every sample by its margins but a
+    certified floor is still short of them: each interval whose floor is short is halved (the
+    instant halfway along its line added: :meth:`Path.halfway`; the floor's gap below the samples
+    shrinks with the interval's travel), up to
+    ``refinements`` times. Every interval lies on one straight segment of this boom and one row
+    interval of each moving other (the instants hold every segment's and row's ends), so a half's
+    drift bound is its own chord's travel. The last check is returned: :meth:`Clearance.certified`
+    says whether it proves ``margin`` at every instant."""
+    timed = others_of(rig, index, others)
+    t = _instants(rig, index, path, timed, t0, resolution)
+    q = path.positions(t)
+    at = {j: o.at(t + t0) for j, o in timed.items()}
+    values = clearances_at(rig, index, q, at)
+    for level in range(refinements + 1):
+        drift = _drift(rig, index, q, at)
+        c = summarise(values, t, drift)
+        if level == refinements or c.certified(margin) or not (c.clear and c.sampled_at_least(margin)):
+            return c
+        short = torch.zeros(t.shape[0] - 1, dtype=torch.bool)
+        for key, x in values.items():  # samples keep their margins here: only the floor between can be short
+            short |= 0.5 * (x[1:] + x[:-1] - drift[key]) < margin[kind_of(key)]
+        mid = path.halfway(t[:-1][short], t[1:][short])
+        q_mid = path.positions(mid)
+        at_mid = {j: o.at(mid + t0) for j, o in timed.items()}
+        v_mid = clearances_at(rig, index, q_mid, at_mid)
+        order = torch.argsort(torch.cat([t, mid]))
+        t, q = torch.cat([t, mid])[order], torch.cat([q, q_mid])[order]
+        at = {j: torch.cat([at[j], at_mid[j]])[order] for j in at}
+        values = {k: torch.cat([values[k], v_mid[k]])[order] for k in values}
+    return c
 
 
 @dataclass(frozen=True)
@@ -201,15 +293,82 @@ class StraightChecks:
     least: dict[str, torch.Tensor]
     floor: dict[str, torch.Tensor]
 
-    def clear(self, kinds: tuple[str, ...] | None = None, margin: float = 0.0) -> torch.Tensor:
-        """Moves whose sampled clearances of ``kinds`` (default all) are all >= ``margin``."""
+    def clear(self, kinds: tuple[str, ...] | None = None, margin: float | Mapping[str, float] = 0.0) -> torch.Tensor:
+        """Moves whose sampled clearances of ``kinds`` (default all) are all >= ``margin`` (one value, or
+        one per kind of :data:`KINDS`)."""
         keys = kinds or tuple(self.least)
-        return torch.stack([self.least[k] >= margin for k in keys]).all(0)
+        return torch.stack([self.least[k] >= _margin(margin, k) for k in keys]).all(0)
 
-    def certified(self, kinds: tuple[str, ...] | None = None, margin: float = 0.0) -> torch.Tensor:
+    def certified(self, kinds: tuple[str, ...] | None = None,
+                  margin: float | Mapping[str, float] = 0.0) -> torch.Tensor:
         """Moves whose floors of ``kinds`` are all >= ``margin`` (clear at every instant)."""
         keys = kinds or tuple(self.floor)
-        return torch.stack([self.floor[k] >= margin for k in keys]).all(0)
+        return torch.stack([self.floor[k] >= _margin(margin, k) for k in keys]).all(0)
+
+
+def _margin(margin: float | Mapping[str, float], key: str) -> float:
+    return float(margin) if isinstance(margin, (int, float)) else margin[kind_of(key)]
+
+
+def certify_straight_moves(rig: Rig, index: int, qa: torch.Tensor, qb: torch.Tensor,
+                           margin: Mapping[str, float], kinds: tuple[str, ...] = ("self", "tunnel"),
+                           others: Mapping | None = None, resolution: float = RESOLUTION,
+                           refinements: int = REFINEMENTS) -> StraightChecks:
+    """:func:`check_straight_moves`, then, for the moves whose samples of ``kinds`` all keep
+    ``margin`` but whose floor is short of it, each short interval halved (its midpoint in s added),
+    up to ``refinements`` times: all those moves in one batch per halving, only the short intervals
+    (a half's drift bound is its own share of the move's travel bound)."""
+    checks = check_straight_moves(rig, index, qa, qb, others, resolution)
+    least = {k: v.clone() for k, v in checks.least.items()}
+    floor = {k: v.clone() for k, v in checks.floor.items()}
+    out = StraightChecks(least, floor)
+    todo = torch.nonzero(out.clear(kinds, margin) & ~out.certified(kinds, margin)).flatten()
+    if not len(todo) or refinements < 1:
+        return out
+    me = rig.booms[index]
+    standing = {j: o.q[:1] for j, o in others_of(rig, index, others).items()}
+    frames_o = {f"boom {rig.names[j]}": (j, rig.booms[j].frames(q)) for j, q in standing.items()}
+    a, step = qa[todo].to(torch.float64), (qb[todo] - qa[todo]).to(torch.float64)
+    R = travel(step, lever_arms(me.boom))
+    n = torch.ceil(R / resolution).clamp_min(1).long()
+    which = torch.repeat_interleave(torch.arange(len(todo)), n + 1)
+    first = torch.cumsum(n + 1, 0) - (n + 1)
+    s = (torch.arange(which.shape[0]) - first[which]).to(torch.float64) / n[which].to(torch.float64)
+
+    def values(w: torch.Tensor, x: torch.Tensor) -> dict[str, torch.Tensor]:
+        with torch.inference_mode():
+            f = me.frames(a[w] + x[:, None] * step[w])
+            c = me.safety.clearances_from_frames(f)
+            out = {"self": c["self"], "tunnel": torch.stack([c[k] for k in SURFACES]).amin(0)}
+            for key, (j, fj) in frames_o.items():
+                if key in kinds:
+                    pair = rig.pair(min(index, j), max(index, j))
+                    out[key] = pair.clearance(f, fj) if index < j else pair.clearance(fj, f)
+        return {k: v for k, v in out.items() if k in kinds}
+
+    vals = values(which, s)
+    drift = {k: 2.0 if k == "self" else 1.0 for k in kinds}
+    for _ in range(refinements + 1):
+        same = which[1:] == which[:-1]
+        width = R[which[1:]] * (s[1:] - s[:-1])
+        mids = {k: 0.5 * (x[1:] + x[:-1] - drift[k] * width) for k, x in vals.items()}
+        short = torch.zeros_like(same)
+        for k, m in mids.items():
+            short |= same & (m < _margin(margin, k))
+        if not bool(short.any()) or _ == refinements:
+            break
+        w_new, s_new = which[1:][short], 0.5 * (s[1:] + s[:-1])[short]
+        v_new = values(w_new, s_new)
+        order = torch.argsort(torch.cat([which, w_new]).to(torch.float64) * 2 + torch.cat([s, s_new]))
+        which, s = torch.cat([which, w_new])[order], torch.cat([s, s_new])[order]
+        vals = {k: torch.cat([vals[k], v_new[k]])[order] for k in vals}
+    P = len(todo)
+    for k, x in vals.items():
+        lo = torch.full((P,), math.inf, dtype=torch.float64).scatter_reduce(0, which, x, "amin")
+        m = torch.where(same, torch.minimum(mids[k], torch.minimum(x[1:], x[:-1])), torch.full_like(mids[k], math.inf))
+        f = torch.full((P,), math.inf, dtype=torch.float64).scatter_reduce(0, which[1:], m, "amin")
+        least[k][todo], floor[k][todo] = lo, torch.minimum(f, lo)
+    return out
 
 
 def check_straight_moves(rig: Rig, index: int, qa: torch.Tensor, qb: torch.Tensor, others: Mapping | None = None,

@@ -94,6 +94,16 @@ class Path:
         s = seg.path((t - self.starts[i]).unsqueeze(-1)).squeeze(-1)
         return seg.start + s.unsqueeze(-1) * seg.step
 
+    def halfway(self, ta: torch.Tensor, tb: torch.Tensor) -> torch.Tensor:
+        """Times ``(K,)`` at which the path is halfway *along its line* (in s, not in t) between the
+        times ``ta (K,)`` and ``tb (K,)``, each pair within one segment: the split that halves an
+        interval's point travel, so a check refined there halves its drift bound."""
+        i = (torch.searchsorted(self.starts, 0.5 * (ta + tb), right=True) - 1).clamp(0, self.starts.shape[0] - 1)
+        seg = _gather(self.segments, i)
+        sa = seg.path((ta - self.starts[i]).unsqueeze(-1)).squeeze(-1)
+        sb = seg.path((tb - self.starts[i]).unsqueeze(-1)).squeeze(-1)
+        return self.starts[i] + path_time(seg, 0.5 * (sa + sb))
+
     def check_instants(self, lever: torch.Tensor, resolution: float) -> torch.Tensor:
         """Increasing times ``(K,)`` such that no boom point moves more than ``resolution`` (m) between
         two of them: each segment at ``ceil(R / resolution)`` equal steps of s, ``R`` its travel bound.

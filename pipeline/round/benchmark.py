@@ -17,6 +17,7 @@ from pathlib import Path
 import pandas as pd
 
 from pipeline.core.io import write_csv
+from pipeline.data.holes import joint_box
 from pipeline.geometry.collision import SafetyModel
 from pipeline.geometry.rig import Rig
 from pipeline.motion.timing import MotionModel
@@ -39,16 +40,18 @@ class BenchRig:
 
 
 def round_benchmark(faces: Sequence, rigs: Sequence[BenchRig], hybrid: HybridSettings, settings: RoundSettings,
-                    first_start: Callable, seed: int = 0, say=print, trajectories: Path | None = None) -> pd.DataFrame:
+                    first_start: Callable, seed: int = 0, say=print, trajectories: Path | None = None,
+                    box: dict | None = None) -> pd.DataFrame:
     """One row per (face, rig); ``faces``: "demo" or hole counts; ``trajectories``: a folder to write
-    each cell's trajectory file into (``<face>_<rig>_trajectory.csv``)."""
+    each cell's trajectory file into (``<face>_<rig>_trajectory.csv``); ``box``: the reach table's
+    joint box (``holes.sup.box``, as the stage passes it: None is the full ranges)."""
     rows = []
     for case in rigs:
         rig, safety, motions, rig_name = case.rig, case.safety, case.motions, case.rig.name
         for face in faces:
             plan = demo_face(safety=safety) if face == "demo" else generated_face(int(face), seed, safety)
             started = time.perf_counter()
-            solvers = rig_solvers(rig, first_start, hybrid)
+            solvers = rig_solvers(rig, first_start, hybrid, joint_box(rig.booms[0].boom, box))
             reach = reach_table(plan, rig, solvers, "hybrid")
             reach_s = time.perf_counter() - started
             res = schedule_round(rig, plan, reach, motions, settings, True, True)
@@ -59,13 +62,13 @@ def round_benchmark(faces: Sequence, rigs: Sequence[BenchRig], hybrid: HybridSet
                    "ratio": s["makespan_over_bound"], "naive_s": s["naive_makespan_s"],
                    "nearest_s": s["nearest_makespan_s"], "moving_s": s["moving_s"], "waiting_s": s["waiting_s"],
                    "naive_move_wait_s": s["naive_round"]["moving_s"] + s["naive_round"]["waiting_s"],
-                   "planning_s": s["planning_s"], "reach_s": reach_s,
+                   "planning_s": res.timings["planning_s"], "reach_s": reach_s,
                    "min_boom_clearance_m": s["min_boom_clearance_m"] if len(rig) > 1 else float("nan"),
                    "waits": s["waits_inserted"], "sequential": s["sequential_fallback"],
                    "conflicts_left": s["conflicts_left"],
                    "detours": s["moves"].get("retract", 0) + s["moves"].get("planned", 0),
                    "moves_failed": s["moves"].get("failed", 0), "seed": s.get("seed"), "stopped": s.get("stopped"),
-                   "baselines_s": s.get("baselines_s")}
+                   "baselines_s": res.timings["baselines_s"]}
             rows.append(row)
             if trajectories is not None:  # for the independent check (scripts/check_round.py)
                 tag = "demo" if face == "demo" else f"gen{face}"

@@ -5,15 +5,22 @@ solutions. Before a set of routes is timed, :meth:`MoveBook.ensure` looks at eve
 was not looked at before:
 
 1. all of them at once, straight, at 1 cm of point travel (:func:`pipeline.motion.checks.
-   check_straight_moves`, the dense check of :func:`pipeline.motion.checks.check_path`): a move whose
-   self and tunnel clearances hold at every sample stays straight;
+   certify_straight_moves`, the dense check of :func:`pipeline.motion.checks.check_path`): a move whose
+   certified self and tunnel floors (a lower bound at every instant, not only at the samples) are at
+   least the margins stays straight; where the samples are clear but a floor is short, the move is
+   checked again at half the resolution (``round.refinements`` times at most);
 2. each other one is planned by :func:`pipeline.motion.moves.plan_move` (``retract``: feed back,
    travel, feed forward; then ``planned``: OMPL's RRTConnect and simplifier), clear of self, tunnel
    and the other booms standing at their parks, and becomes the oracle's detour for that move
    (:meth:`pipeline.round.oracle.KinematicOracle.set_detour`): its duration goes into ``move_s``, its
    motion into the boom-boom checks of the timeline and into the trajectory rows;
-3. a move no attempt made clear is ``failed``: it keeps the straight line and is reported with the
-   reason (``moves_not_clear`` of the round's JSON), never hidden.
+3. a move no attempt made clear (or, with ``round.detours: false``, any move not certified straight) is
+   ``failed``: it keeps the straight line, its rows are ``move_unclear`` in the trajectory file, and it
+   is reported with the reason (``moves_not_clear`` of the round's JSON), never hidden.
+
+Margins (:func:`pipeline.motion.checks.margins`): the trajectory rows lie on the moves' joint-space
+segments, so the file passes through the motion's own configurations and keeps its self and tunnel
+floors: the margins are ``round.self_margin_m`` and ``round.tunnel_margin_m`` (0 by default).
 
 A move's answer holds for its reverse too (the same configurations backwards; a rest-to-rest path
 reversed takes the same time), so both are recorded at once. The book only grows: a move looked at
@@ -33,13 +40,14 @@ import time
 import numpy as np
 import torch
 
-from pipeline.motion.checks import check_straight_moves
+from pipeline.motion.checks import certify_straight_moves, margins
 from pipeline.motion.moves import PlannerSettings, plan_move
 from pipeline.motion.path import Path, unwrapped
-from pipeline.round.instance import Instance
+from pipeline.round.instance import Instance, RoundSettings
 
 UNKNOWN, STRAIGHT, RETRACT, PLANNED, FAILED = range(5)
 KIND = {STRAIGHT: "straight", RETRACT: "retract", PLANNED: "planned", FAILED: "failed"}
+KINDS = ("self", "tunnel")  # what the book certifies; boom-boom is the timeline's oracle's (module doc)
 
 
 def used_moves(routes: list[list[int]], park: int) -> list[np.ndarray]:
@@ -51,16 +59,36 @@ def used_moves(routes: list[list[int]], park: int) -> list[np.ndarray]:
     return out
 
 
+def planner_settings(settings: RoundSettings) -> PlannerSettings:
+    """The detours' OMPL settings from the round's (counts by default; ``detour_plan_s`` opts in to
+    wall time, the simplifier getting a tenth of it)."""
+    timed = settings.detour_plan_s
+    return PlannerSettings(iterations=settings.detour_iterations, simplify_steps=settings.detour_simplify_steps,
+                           time_s=timed, simplify_s=None if timed is None else timed / 10, seed=settings.detour_seed,
+                           box_margin=settings.detour_box, refinements=settings.refinements)
+
+
 class MoveBook:
     """What is known of each boom's moves: ``status (B, H + 1, H + 1)`` (UNKNOWN, STRAIGHT, RETRACT,
-    PLANNED, FAILED), the reasons of detours and failures, and the planning seconds spent."""
+    PLANNED, FAILED), the reasons of detours and failures, the certified floors ``floor[kind] (B, H + 1,
+    H + 1)`` of self and tunnel clearance of each move's motion (NaN: not looked at), and the planning
+    seconds spent (wall clock: for logs, never for a decision).
 
-    def __init__(self, oracle, n_holes: int, resolution: float = 0.01, planner: PlannerSettings | None = None):
+    A move is accepted (straight or detour) only when its certified floors are at least ``margin``
+    (:func:`pipeline.motion.checks.margins` with round.self_margin_m, round.tunnel_margin_m: the
+    trajectory file's rows pass through the move's own configurations, so they keep its floors)."""
+
+    def __init__(self, oracle, n_holes: int, settings: RoundSettings | None = None):
+        settings = settings or RoundSettings()
         self.oracle, self.rig, self.H = oracle, oracle.rig, n_holes
-        self.resolution = resolution
-        self.planner = planner or PlannerSettings(time_s=2.0, simplify_s=0.5)
+        self.resolution, self.refinements = settings.sample_m, settings.refinements
+        self.tolerance = settings.traj_tol_m
+        self.margin = margins(settings.traj_tol_m, False, settings.self_margin_m, settings.tunnel_margin_m)
+        self.planner = planner_settings(settings)
+        self.detours = settings.detours  # false: a move not certified straight is failed, not re-planned
         B = len(oracle.joints)
         self.status = np.zeros((B, n_holes + 1, n_holes + 1), np.int8)
+        self.floor = {k: np.full((B, n_holes + 1, n_holes + 1), np.nan) for k in ("self", "tunnel")}
         self.reason: dict[tuple[int, int, int], str] = {}
         self.durations: dict[tuple[int, int, int], float] = {}  # (boom, from, to) -> the detour's seconds
         self.seconds = 0.0
@@ -88,8 +116,12 @@ class MoveBook:
             limits = self.oracle.limits[b]
             qa = q[torch.as_tensor(todo[:, 0])]
             qb = unwrapped(qa, q[torch.as_tensor(todo[:, 1])], limits)
-            checks = check_straight_moves(self.rig, b, qa, qb, resolution=self.resolution)
-            clear = checks.clear(("self", "tunnel")).numpy()
+            checks = certify_straight_moves(self.rig, b, qa, qb, self.margin, KINDS, resolution=self.resolution,
+                                            refinements=self.refinements)
+            clear = checks.certified(KINDS, self.margin).numpy()
+            for kind in KINDS:
+                f = checks.floor[kind].numpy()
+                self.floor[kind][b, todo[:, 0], todo[:, 1]] = self.floor[kind][b, todo[:, 1], todo[:, 0]] = f
             u, v = todo[clear, 0], todo[clear, 1]
             self.status[b, u, v] = self.status[b, v, u] = STRAIGHT
             for k in np.flatnonzero(~clear):
@@ -100,12 +132,22 @@ class MoveBook:
         return dataclasses.replace(inst, move_s=move_s) if changed else inst
 
     def _detour(self, b: int, u: int, v: int, qa: torch.Tensor, qb: torch.Tensor, move_s: np.ndarray) -> None:
+        if not self.detours:
+            self.status[b, u, v] = self.status[b, v, u] = FAILED
+            short = ", ".join(f"{k} {self.floor[k][b, u, v]:.4f} m" for k in KINDS
+                              if not self.floor[k][b, u, v] >= self.margin[k])
+            self.reason[(b, u, v)] = self.reason[(b, v, u)] = (
+                f"straight: certified floor short ({short}); no detour (round.detours=false)")
+            return
         m = plan_move(self.rig, b, qa, qb, self.oracle.limits[b], kinds=("retract", "planned"),
-                      planner=self.planner, resolution=self.resolution)
-        if not m.clear:
+                      planner=self.planner, resolution=self.resolution, tolerance=self.tolerance,
+                      margin=self.margin)
+        if not m.clear:  # the straight line stays, with its own (short) floors
             self.status[b, u, v] = self.status[b, v, u] = FAILED
             self.reason[(b, u, v)] = self.reason[(b, v, u)] = m.reason
             return
+        for kind in KINDS:  # a detour's floors (the reverse: the same configurations backwards)
+            self.floor[kind][b, u, v] = self.floor[kind][b, v, u] = m.clearance.floors[kind]
         kind = RETRACT if m.kind == "retract" else PLANNED
         back = Path.through(m.path.waypoints.flip(0), self.oracle.limits[b])
         for (x, y), path in (((u, v), m.path), ((v, u), back)):
@@ -113,6 +155,17 @@ class MoveBook:
             move_s[b, x, y] = self.durations[(b, x, y)] = path.duration
             self.status[b, x, y] = kind
             self.reason[(b, x, y)] = m.reason
+
+    def floors(self, routes: list[list[int]]) -> dict[str, float | None]:
+        """The smallest certified floor of self and tunnel clearance over the routes' moves (m; failed
+        moves included, with their straight line's floor; None when no move was looked at)."""
+        out = {}
+        for kind in KINDS:
+            vals = [self.floor[kind][b, m[:, 0], m[:, 1]] for b, m in enumerate(used_moves(routes, self.H))]
+            vals = np.concatenate([v for v in vals if len(v)] or [np.zeros(0)])
+            vals = vals[np.isfinite(vals)]
+            out[kind] = float(vals.min()) if len(vals) else None
+        return out
 
     def kinds(self, routes: list[list[int]]) -> tuple[dict[str, int], list[tuple[int, int, int]]]:
         """Counts of the routes' moves by kind, and the failed ones ``(boom, from, to)``."""

@@ -61,7 +61,8 @@ def gantt_figure(trajectory: pd.DataFrame, booms, title: str = "") -> Figure:
         ts = t["t"].to_numpy()
         spans = {"drill": [], "move": [], "wait": []}
         for i in range(len(t) - 1):
-            kind = {"collar": "drill", "drill": "drill", "retract": "drill", "move": "move", "wait": "wait"}.get(ev[i])
+            kind = {"collar": "drill", "drill": "drill", "retract": "drill", "move": "move", "move_unclear": "move",
+                    "wait": "wait"}.get(ev[i])
             if kind:
                 spans[kind].append((ts[i], ts[i + 1] - ts[i]))
         for kind, s in spans.items():
@@ -137,4 +138,5 @@ def replay_html(trajectory: pd.DataFrame, rig, collars: np.ndarray, frames: int 
              "args": [[None], {"mode": "immediate", "frame": {"duration": 0, "redraw": False}}]}]}],
         margin={"l": 0, "r": 0, "t": 40, "b": 0},
     )
-    return fig.to_html(include_plotlyjs=True, full_html=True, auto_play=False)
+    # a fixed div id: plotly draws a random one per call, and the page must reproduce byte for byte
+    return fig.to_html(include_plotlyjs=True, full_html=True, auto_play=False, div_id="round-replay")

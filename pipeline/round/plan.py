@@ -16,12 +16,14 @@
 The best conflict-free timeline (fewest conflicts left, then makespan) is kept. **Why it ends:** step 4
 runs only when the last timeline revealed a pair not yet fed back, a set that only grows and holds at
 most (B H)^2 entries; at most ``reopt_rounds`` times; not once the best round is within ``stop_ratio``
-of the lower bound; and not when the planning time left (``budget_s``) is less than one solve plus the
-last timing. The move book looks at each of the B (H + 1)^2 moves at most once.
+of the lower bound; and, only where the opt-in wall-time ``budget_s`` is set (not reproducible), not
+when the planning time left is less than one solve plus the last timing.
+The move book looks at each of the B (H + 1)^2 moves at most once.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -30,7 +32,6 @@ import numpy as np
 import torch
 
 from pipeline.motion.checks import check_straight_moves
-from pipeline.motion.moves import PlannerSettings
 from pipeline.motion.path import unwrapped
 from pipeline.round.baselines import naive_routes, nearest_routes
 from pipeline.round.bounds import lower_bound
@@ -77,16 +78,16 @@ class _Timer:
     def __call__(self, routes: list[list[int]]) -> Timeline:
         if self.book is not None:
             self.inst = self.book.ensure(self.inst, routes)
-        return resolve(self.inst, routes, self.oracle, self.settings.max_repairs)
+        return resolve(self.inst, routes, self.oracle, self.settings.max_repairs,
+                       escalations=self.settings.escalations)
 
 
 def make_book(inst: Instance, oracle, settings: RoundSettings) -> MoveBook | None:
-    """The move book of a kinematic oracle (None for an oracle without a rig, or ``detours: false``)."""
-    if not settings.detours or getattr(oracle, "rig", None) is None:
+    """The move book of a kinematic oracle (None for an oracle without a rig). With ``detours: false``
+    it still certifies every move and fails those it cannot keep straight (never unchecked)."""
+    if getattr(oracle, "rig", None) is None:
         return None
-    return MoveBook(oracle, inst.n_holes, settings.sample_m,
-                    PlannerSettings(time_s=settings.detour_plan_s, simplify_s=settings.detour_plan_s / 10,
-                                    box_margin=settings.detour_box))
+    return MoveBook(oracle, inst.n_holes, settings)
 
 
 def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callable[[str], None] | None = None,
@@ -120,15 +121,21 @@ def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callab
                 best, seed = tl, kind
         baselines_s = time.perf_counter() - t_base
 
-    def remaining() -> float:
-        return settings.budget_s - (time.perf_counter() - t0)
-
-    def limit() -> float:
-        base = time_limit_s if time_limit_s is not None else settings.time_limit_s
-        return max(0.1, min(base, remaining()))
-
+    # Wall time is opt-in (round.budget_s, round.time_limit_s): without it no decision reads a clock.
     base_limit = time_limit_s if time_limit_s is not None else settings.time_limit_s
-    routing = best is None or remaining() >= base_limit + last_timing  # at least one solve, budget allowing
+
+    def remaining() -> float:
+        return math.inf if settings.budget_s is None else settings.budget_s - (time.perf_counter() - t0)
+
+    def limit() -> float | None:
+        if base_limit is None and settings.budget_s is None:
+            return None  # counts only: round.solution_limit
+        return max(0.1, min(base_limit if base_limit is not None else math.inf, remaining()))
+
+    def out_of_budget() -> bool:  # the next solve (its time limit, if any) and its timing would pass budget_s
+        return settings.budget_s is not None and remaining() < (base_limit or 0.0) + last_timing
+
+    routing = best is None or not out_of_budget()  # at least one solve, budget allowing
     blocked = None
     if routing and settings.blocked_penalty_s > 0 and inst.n_booms > 1:
         blocked = park_blocked(inst, oracle, settings.blocked_neighbours, settings.blocked_screen_m)
@@ -187,7 +194,7 @@ def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callab
         if it == settings.reopt_rounds:
             stopped = f"reopt_rounds ({settings.reopt_rounds}) done"
             break
-        if remaining() < base_limit + last_timing:  # the next solve and its timing would pass the budget
+        if out_of_budget():
             stopped = f"budget_s ({settings.budget_s:g} s): no time left for another routing solve"
             break
         penalised.update(new)

@@ -5,7 +5,7 @@ makespan is a multi-vehicle routing problem with a min-max objective: booms are 
 and end at their own park, reach is the set of allowed vehicles per node, drilling is service time
 and the makespan is the global span of a time dimension. OR-Tools models exactly that, per-vehicle
 transit matrices included (each boom has its own move times), and its guided local search finds
-near-optimal routes for 150 nodes in seconds; it is well kept, on PyPI, and needs no licence.
+near-optimal routes for 150 nodes in a few hundred solutions (seconds); it is well kept, on PyPI, and needs no licence.
 CP-SAT would prove optimality on small faces (about 15 holes), but a round of 50-150 holes with
 per-boom sequence-dependent times is far beyond an exact model in 60 s on 2 cores, and its
 answers would still need the same conflict loop; we leave it out (a possible check for tiny faces).
@@ -59,12 +59,19 @@ class Routes:
 
 
 def _search_parameters(settings: RoundSettings, time_limit_s: float | None):
+    """Guided local search stopped after ``solution_limit`` solutions: a count, so the same model gives
+    the same routes on any machine (OR-Tools' routing search is single-threaded and deterministic).
+    A time limit (``time_limit_s`` here, else ``settings.time_limit_s``) is opt-in and stops it
+    earlier on a busy machine: not reproducible."""
     from ortools.constraint_solver import pywrapcp, routing_enums_pb2
 
     p = pywrapcp.DefaultRoutingSearchParameters()
     p.first_solution_strategy = getattr(routing_enums_pb2.FirstSolutionStrategy, settings.first_solution)
     p.local_search_metaheuristic = routing_enums_pb2.LocalSearchMetaheuristic.GUIDED_LOCAL_SEARCH
-    p.time_limit.FromMilliseconds(int(1000 * (time_limit_s if time_limit_s is not None else settings.time_limit_s)))
+    p.solution_limit = int(settings.solution_limit)
+    limit = time_limit_s if time_limit_s is not None else settings.time_limit_s
+    if limit is not None:
+        p.time_limit.FromMilliseconds(int(1000 * limit))
     return p
 
 
@@ -149,6 +156,7 @@ def route(inst: Instance, settings: RoundSettings, same_boom: Mapping[tuple[int,
 
 
 def _status(model) -> str:
-    names = {0: "not solved", 1: "success", 2: "no solution found", 3: "time limit", 4: "invalid",
-             5: "infeasible", 6: "optimal"}
+    # OR-Tools 9.15's RoutingSearchStatus (a solution or time limit hit before a local optimum: "partial")
+    names = {0: "not solved", 1: "success", 2: "partial (local optimum not reached)", 3: "fail",
+             4: "fail (time limit)", 5: "invalid", 6: "infeasible", 7: "optimal"}
     return names.get(int(model.status()), str(model.status()))

@@ -31,7 +31,7 @@ from pipeline.plans.solutions import INVALID
 from pipeline.round.instance import RoundSettings, precedence_indices
 from pipeline.round.kinematic import kinematic_round
 from pipeline.round.plan import RoundPlan, baseline, plan_round
-from pipeline.round.tables import round_table, summary, trajectory_table
+from pipeline.round.tables import boom_floor, round_table, summary, trajectory_table
 from pipeline.round.timeline import Timeline
 
 D = torch.float64
@@ -48,6 +48,7 @@ class RoundResult:
     trajectory: pd.DataFrame
     summary: dict
     moves: list[dict] = field(default_factory=list)
+    timings: dict = field(default_factory=dict)  # wall-clock seconds: not in the summary (it reproduces)
 
 
 def _joints(reach: Reach, rig: Rig, b: int, n_holes: int) -> torch.Tensor:
@@ -115,7 +116,8 @@ def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
     names = rig.booms[0].boom.joint_names
     kinds, not_clear = move_report(inst, rp, rig) if moves else (None, [])
     table = round_table(inst, rp.timeline, [j.numpy() for j in joints], names)
-    traj = trajectory_table(inst, rp.timeline, oracle, names)
+    failed = rp.book.kinds(rp.timeline.routes)[1] if rp.book is not None else []
+    traj = trajectory_table(inst, rp.timeline, oracle, names, failed)
 
     def extra(tl):
         return None if tl is None else {"waits": len(tl.repairs), "conflicts_left": tl.conflicts_left,
@@ -123,14 +125,21 @@ def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
                                         "waiting_s": sum(_times(inst, tl, b)["waiting_s"] for b in range(len(rig)))}
 
     s = summary(inst, rp.timeline, rp.lower_bound_s, naive, nearest, [m.base for m in rig.booms], rig.d_boom, kinds,
-                rig=rig.name, planning_s=rp.planning_s, baselines_s=rp.baselines_s, stopped=rp.stopped,
+                rig=rig.name, stopped=rp.stopped,
                 routing_solves=rp.rounds, seed=rp.seed, kept_seed=rp.kept_seed,
                 naive_round=extra(naive),
-                nearest_round=extra(nearest), moves_not_clear=not_clear,
-                total_s=time.perf_counter() - started)
+                nearest_round=extra(nearest), moves_failed=len(failed), moves_not_clear=not_clear,
+                certified_floor_m={**(rp.book.floors(rp.timeline.routes) if rp.book is not None else
+                                      {"self": None, "tunnel": None}),
+                                   "boom": boom_floor(rp.timeline, oracle.floor)},
+                margin_m={**({k: rp.book.margin[k] for k in ("self", "tunnel")} if rp.book is not None else
+                             {"self": None, "tunnel": None}), "boom": 0.0},
+                reproducible=settings.reproducible)
     s["moving_s"] = sum(v["moving_s"] for v in s["booms"].values())
     s["waiting_s"] = sum(v["waiting_s"] for v in s["booms"].values())
-    return RoundResult(inst, oracle, rp, naive, nearest, table, traj, s, not_clear)
+    timings = {"planning_s": rp.planning_s, "baselines_s": rp.baselines_s, "total_s": time.perf_counter() - started,
+               "moves_s": rp.book.seconds if rp.book is not None else 0.0}
+    return RoundResult(inst, oracle, rp, naive, nearest, table, traj, s, not_clear, timings)
 
 
 def _times(inst, tl, b):

@@ -4,7 +4,9 @@
   hole in plan order; ``t_start``/``t_end`` bound the drilling (collaring to the end of retraction);
   a hole no boom can drill keeps its row (``status = unreachable``, its reason, no boom, no times);
 - trajectory table (spec section 7): ``boom, t, q1 .. qn, event, hole_id``, every boom from park to
-  park; a row's event names what starts there (park, move, collar, drill, retract, wait, done).
+  park; a row's event names what starts there (park, move, collar, drill, retract, wait, done;
+  ``move_unclear``: a move no attempt made certified clear, kept as its straight line: an extension of
+  the spec's events, so that no reader takes it for a checked move).
   Moves are the oracle's (the synchronised straight line, or the move's detour: retract or planned,
   stopping at each waypoint), sampled by :meth:`pipeline.round.oracle.KinematicOracle.rows` within
   ``traj_tol_m`` of the planned motion; full-turn
@@ -39,8 +41,10 @@ def round_table(inst: Instance, tl: Timeline, joints, joint_names) -> pd.DataFra
     return out
 
 
-def trajectory_table(inst: Instance, tl: Timeline, oracle, joint_names) -> pd.DataFrame:
+def trajectory_table(inst: Instance, tl: Timeline, oracle, joint_names, unclear=()) -> pd.DataFrame:
+    """``unclear``: moves ``(boom, from, to)`` whose rows are marked ``move_unclear`` (node H: park)."""
     H, frames = inst.n_holes, []
+    unclear = {(int(b), int(u), int(v)) for b, u, v in unclear}
     for b, route in enumerate(tl.routes):
         q_cur = oracle.joints[b][H].clone()
         ts, qs, ev, hid = [0.0], [q_cur.numpy()], ["park"], [""]
@@ -51,8 +55,9 @@ def trajectory_table(inst: Instance, tl: Timeline, oracle, joint_names) -> pd.Da
                 ts.append(ready), qs.append(q_cur.numpy()), ev.append("wait"), hid.append("")
             if ar > ms:
                 rt, rq = oracle.rows(b, node, tgt, q_cur)
+                event = "move_unclear" if (b, node, tgt) in unclear else "move"
                 for t, q in zip(rt[:-1], rq[:-1], strict=True):
-                    ts.append(ms + float(t)), qs.append(q), ev.append("move"), hid.append("")
+                    ts.append(ms + float(t)), qs.append(q), ev.append(event), hid.append("")
                 q_cur = torch.as_tensor(rq[-1])
             if tgt == H:
                 ts.append(ar), qs.append(q_cur.numpy()), ev.append("done"), hid.append("")
@@ -78,6 +83,16 @@ def round_status(inst: Instance, tl: Timeline) -> str:
     if drilled == 0:
         return "none drillable"
     return "complete" if drilled == inst.n_holes else "partial"
+
+
+def boom_floor(tl: Timeline, oracle_floor: float) -> float | None:
+    """The certified floor of boom-boom clearance (m, less d_boom) over the timeline, or None (one boom,
+    or conflicts left: nothing certified). Wherever a boom moves the oracle proves at least its floor
+    (2 traj_tol_m) at every instant; a pair standing still is exact (no motion, rows exact) and was
+    measured: so with no conflict left, every sample below the floor is a standing pair's exact value."""
+    if not np.isfinite(tl.min_clearance) or tl.conflicts_left:
+        return None
+    return float(min(oracle_floor, tl.min_clearance))
 
 
 def summary(inst: Instance, tl: Timeline, lower_bound_s: float, naive: Timeline | None, nearest: Timeline | None,

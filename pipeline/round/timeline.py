@@ -27,7 +27,7 @@ when one move of boom g gives way to boom e for the third time and more, it wait
 e's next segment, then the one after, and so on up to e's return to park (it cannot escalate past
 e's last segment, so this ends too); of two booms only the first to escalate does, the other keeps
 plain waits. The loop stops at the first conflict-free timeline; after ``max_repairs`` repairs, or
-when an escalation would pass e's return to park or ``ESCALATIONS`` steps (a deadlock: g's place
+when an escalation would pass e's return to park or ``round.escalations`` steps (a deadlock: g's place
 blocks e's next move and e's place blocks g's, which no wait parts), the timeline falls back to one
 boom at a time: each boom drills its whole route
 from park to park while every other boom stands at park. That timeline has no moving x moving or
@@ -48,7 +48,7 @@ import numpy as np
 from pipeline.core.errors import ConfigError
 from pipeline.round.instance import Instance
 
-ESCALATIONS = 4  # waits for the other boom's later segments before the loop gives up on waits
+ESCALATIONS = 4  # default of round.escalations: waits for the other boom's later segments before giving up
 
 
 @dataclass
@@ -218,7 +218,7 @@ def _repair(tl: Timeline, c: dict, oracle) -> tuple[int, int, float, dict] | Non
     return boom, k, until, rec
 
 
-def _escalate(tl: Timeline, fix, seen: dict):
+def _escalate(tl: Timeline, fix, seen: dict, escalations: int = ESCALATIONS):
     """The same move of boom g giving way to boom e again: from the third time on, it waits for the
     end of e's n-th next segment instead (n = repeats - 2), up to e's return to park; None past that.
     The first boom to escalate against another is the only one of the two that does (were both to,
@@ -234,7 +234,7 @@ def _escalate(tl: Timeline, fix, seen: dict):
     seg = segments(tl, other)
     last = len(seg["t0"]) - 1  # e's final standing at park
     at = int(np.searchsorted(seg["t1"], until - 1e-9))  # the segment whose end was ``until``
-    if at + n - 2 > last or n - 2 > ESCALATIONS:
+    if at + n - 2 > last or n - 2 > escalations:
         return None
     nxt = at + n - 2
     later = float(seg["t1"][nxt]) if nxt < last else float(seg["t0"][last])  # the last: e back at park
@@ -256,8 +256,10 @@ def sequential(inst: Instance, routes: list[list[int]]) -> Timeline:
     return tl
 
 
-def resolve(inst: Instance, routes: list[list[int]], oracle, max_repairs: int = 300, measure: bool = True) -> Timeline:
-    """The routes' timeline with waits inserted until no conflict is left (module docstring)."""
+def resolve(inst: Instance, routes: list[list[int]], oracle, max_repairs: int = 300, measure: bool = True,
+            escalations: int = ESCALATIONS) -> Timeline:
+    """The routes' timeline with waits inserted until no conflict is left (module docstring;
+    ``escalations``: round.escalations)."""
     nb = [np.zeros(len(r) + 1) for r in routes]
     tl = simulate(inst, routes, nb)
     repairs, since, seen = [], -math.inf, {}
@@ -267,7 +269,7 @@ def resolve(inst: Instance, routes: list[list[int]], oracle, max_repairs: int = 
             break
         fix = _repair(tl, c, oracle) if len(repairs) < max_repairs else None
         if fix is not None:
-            fix = _escalate(tl, fix, seen)
+            fix = _escalate(tl, fix, seen, escalations)
         if fix is None:
             tl = sequential(inst, routes)
             break
