@@ -186,10 +186,6 @@ def agree(acts: Actions, rows: dict[str, BoomRows], trajectory: Path) -> None:
 def _drills(acts: Actions, k: np.ndarray, r: BoomRows, where: str, trajectory: Path) -> None:
     collars = np.flatnonzero(r.event == "collar")
     at = dict(zip(r.hole[collars], collars, strict=False))
-    mine = set(r.hole[collars])
-    extra = sorted(mine - set(acts.hole[k]))
-    if extra:
-        raise InputError(f"{where}: collars hole(s) {extra} in {trajectory} that are no drill action of it")
     for i in k:  # drill actions: one per hole the boom drills
         h = acts.hole[i]
         c = at.get(h)
@@ -203,6 +199,9 @@ def _drills(acts: Actions, k: np.ndarray, r: BoomRows, where: str, trajectory: P
             raise InputError(f"{where}, row {acts.line[i]}: drill of hole {h} spans {acts.t_start[i]!r}.."
                              f"{acts.t_end[i]!r}; in {trajectory} the hole's collar to the end of its retraction "
                              f"is {span}")
+    extra = sorted(set(r.hole[collars]) - set(acts.hole[k]))
+    if extra:
+        raise InputError(f"{where}: collars hole(s) {extra} in {trajectory} that are no drill action of it")
 
 
 def _moves(acts: Actions, k: np.ndarray, r: BoomRows, where: str, trajectory: Path) -> None:
