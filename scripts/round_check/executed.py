@@ -7,7 +7,9 @@ of booms, the episode floors (:mod:`round_check.episodes`) are computed once; pe
 pairs whose floor is below d_boom and whose executed windows overlap (open intervals: every instant
 lies in some pair of episodes of positive length, closed at their ends) are candidates, each confirmed
 or cleared by a dense certified sweep of the two booms over the overlap, each action's rows shifted to
-its executed start. Identical windows (same episodes, same relative timing) are swept once.
+its executed start. Identical windows (same episodes, same relative timing) are swept once; once the
+messages are full, a draw already shown broken is not swept further (``windows_confirmed`` then
+counts the sweeps run).
 """
 
 from __future__ import annotations
@@ -161,6 +163,8 @@ def _boom_boom(st, rows, acts, dr, start, end, spacing_m, levels):
         over = (Sa < Eb) & (Sb < Ea)
         cands += int(over.sum())
         for d, p in np.argwhere(over):  # candidates: each swept unless its window was swept already
+            if int(d) in confirmed_draws and len(msgs) >= MAX_MESSAGES:
+                continue  # this draw is broken and said so: the sweep would only add a message not shown
             i, j = int(ea[p]), int(eb[p])
             w0, w1 = max(Sa[d, p], Sb[d, p]), min(Ea[d, p], Eb[d, p])
             w1 = w0 if not np.isfinite(w1) else w1  # two final pauses: both stand still
