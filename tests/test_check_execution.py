@@ -6,6 +6,7 @@ and the episode floors agree with hand values and brute force."""
 
 import contextlib
 import importlib
+import importlib.util
 import io
 import json
 
@@ -13,9 +14,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tests.test_check_round import _load
+from pipeline.core.config import PROJECT_ROOT
 
-cr = _load()
+_spec = importlib.util.spec_from_file_location("check_round_script", PROJECT_ROOT / "scripts" / "check_round.py")
+cr = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(cr)
 ex = importlib.import_module("round_check.execute")  # the checker's own modules, through the script's path
 ep = importlib.import_module("round_check.episodes")
 rc_actions = importlib.import_module("round_check.actions")
