@@ -84,3 +84,25 @@ def copy_tiny_study(_tiny_study):
 def tiny_study(_tiny_study, tmp_path) -> Path:
     """A private copy of the tiny study in ``tmp_path``: what a test writes there no other test sees."""
     return copy_study(_tiny_study, tmp_path)
+
+
+CHECK_STAGE = ["rig=twin", "schedule.network=null", "round.solution_limit=20", "round.reopt_rounds=2",
+               "schedule.figures=false", "schedule.replay=false", "schedule.baselines=false", "runtime.progress=false"]
+
+
+@pytest.fixture(scope="session")
+def small_twin_round(tmp_path_factory, make_cfg):
+    """One small twin round (6 holes of the demo face), planned once for the checker's tests: its folder
+    and the stage's settings as composed (``small_trajectory.csv``, ``small_round.csv``, ``small_round.json``)."""
+    import pandas as pd
+
+    from pipeline import demo_face, schedule
+
+    tmp = tmp_path_factory.mktemp("check_round")
+    demo_face.run(make_cfg(tmp))
+    holes = pd.read_csv(tmp / "data" / "plans" / "demo_face.csv")
+    plan = tmp / "small.csv"
+    holes.iloc[::11].reset_index(drop=True).to_csv(plan, index=False)
+    stage = [*CHECK_STAGE, f"plan={plan}"]
+    schedule.run(make_cfg(tmp, *stage))
+    return tmp, ["experiment=tiny", f"paths.data={tmp}/data", *stage]

@@ -13,12 +13,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pipeline import demo_face, schedule
 from pipeline.core.config import PROJECT_ROOT
 
 SCRIPT = PROJECT_ROOT / "scripts" / "check_round.py"
-FAST = ["rig=twin", "schedule.network=null", "round.solution_limit=20", "round.reopt_rounds=2",
-        "schedule.figures=false", "schedule.replay=false", "schedule.baselines=false", "runtime.progress=false"]
 
 
 def _load():
@@ -33,16 +30,9 @@ rc_distance, rc_settings, Sweep = cr.distance, cr.settings.settings, cr.sweep.Sw
 
 
 @pytest.fixture(scope="module")
-def good(tmp_path_factory, make_cfg):
-    """One small twin round (6 holes of the demo face), planned once: the files and the overrides."""
-    tmp = tmp_path_factory.mktemp("check_round")
-    demo_face.run(make_cfg(tmp))
-    holes = pd.read_csv(tmp / "data" / "plans" / "demo_face.csv")
-    plan = tmp / "small.csv"
-    holes.iloc[::11].reset_index(drop=True).to_csv(plan, index=False)
-    stage = [*FAST, f"plan={plan}"]
-    schedule.run(make_cfg(tmp, *stage))
-    return tmp, ["experiment=tiny", f"paths.data={tmp}/data", *stage]  # the stage's settings, as composed
+def good(small_twin_round):
+    """One small twin round (6 holes of the demo face), planned once a session: the files and the overrides."""
+    return small_twin_round
 
 
 def _run(traj, overrides, *extra):

@@ -12,15 +12,18 @@ from pathlib import Path
 import numpy as np
 
 from . import rules
+from .actions import agree, read_actions, read_interlocks
 from .distance import SURFACES
 from .errors import InputError
+from .execute import draws, graph
+from .executed import check as check_executed
 from .files import read_plan, read_round_table, read_summary, read_trajectory
 from .settings import CONF_DIR, settings
 from .sweep import Sweep
 
 USAGE = """python scripts/check_round.py <stem>_trajectory.csv [hydra overrides, as the stage's: rig=twin ...]
         [--round F] [--summary F] [--plan F] [--spacing-m 0.005] [--collar-tol-mm 0.1] [--angle-tol-deg A]
-        [--levels 4] [--trajectory-only]"""
+        [--levels 4] [--trajectory-only] [--actions F] [--interlocks F] [--execute N] [--seed S]"""
 
 
 def _siblings(trajectory: Path, round_csv, summary, plan):
@@ -116,7 +119,8 @@ def _messages(sw: Sweep, res, st, ctx) -> tuple[list[str], list[str]]:
 
 def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spacing_m: float = 0.005,
           collar_tol_mm: float = 0.1, angle_tol_deg: float | None = None, levels: int = 4,
-          trajectory_only: bool = False) -> dict:
+          trajectory_only: bool = False, actions=None, interlocks=None, execute: int | None = None,
+          seed: int = 0) -> dict:
     """Check one round's files; returns the report (raises :class:`InputError` on input it cannot judge).
 
     ``trajectory_only``: the motion alone (clearances, limits, speeds, park, the planner's flags), for a
@@ -127,6 +131,10 @@ def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spa
             raise InputError(f"{name} {v!r}: must be a positive number")
     if not (isinstance(levels, int) and 0 <= levels <= 10):
         raise InputError(f"--levels {levels!r}: must be an integer in 0..10")
+    if execute is not None and not (isinstance(execute, int) and execute >= 0):
+        raise InputError(f"--execute {execute!r}: must be a whole number of draws >= 0")
+    if trajectory_only and (execute is not None or actions or interlocks):
+        raise InputError("--trajectory-only checks the motion alone: no --actions, --interlocks or --execute")
     trajectory = Path(trajectory)
     if not trajectory.is_file():
         raise InputError(f"{trajectory}: no such trajectory file")
@@ -148,6 +156,7 @@ def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spa
     # the matching angle: the direction error that moves the preview point (paper 000 eq. 3) by the collar tolerance
     angle_tol = math.radians(angle_tol_deg) if angle_tol_deg is not None else collar_tol / depth
 
+    execution = _read_execution(st, trajectory, rows, actions, interlocks, execute)  # input errors before any sweep
     given = table[table["status"] == "ok"]["boom"].value_counts().to_dict()
     report = _motion(st, trajectory, spacing_m, levels, given, {}, rows)
     msgs, hole_stats = rules.holes(st, rows, table, holes_plan, collar_tol, angle_tol)
@@ -155,10 +164,40 @@ def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spa
         report["booms"][b.name].update(hole_stats.get(b.name, {}))
     mk, _ = rules.makespan(rows, doc, summary_path)
     report["violations"] = msgs + mk + report["violations"]
+    report["execution"] = (_execution(st, rows, holes_plan, *execution, execute, seed, spacing_m, levels, report)
+                           if isinstance(execution, tuple) else execution)
     report.update({"round": str(round_csv), "summary": str(summary_path), "plan": str(plan_path),
                    "collar_tol_mm": collar_tol_mm, "angle_tol_deg": math.degrees(angle_tol),
                    "json_makespan_s": float(doc["makespan_s"]), "holes": hole_stats["_holes"]})
     return report
+
+
+def _read_execution(st, trajectory: Path, rows, actions, interlocks, execute):
+    """(actions, interlocks) read and held against the trajectory, or a note why none is checked."""
+    stem = trajectory.name[: -len("_trajectory.csv")] if trajectory.name.endswith("_trajectory.csv") else None
+    a_path = Path(actions) if actions else (trajectory.with_name(f"{stem}_actions.csv") if stem else None)
+    if not actions and (a_path is None or not a_path.exists()):
+        if execute is not None or interlocks:
+            raise InputError(f"{a_path or trajectory}: no actions file to execute: give --actions")
+        return {"checked": False, "why": f"no actions file ({a_path or 'give --actions'})"}
+    i_path = Path(interlocks) if interlocks else (trajectory.with_name(f"{stem}_interlocks.csv") if stem else None)
+    if i_path is None:
+        raise InputError(f"{trajectory}: not named <stem>_trajectory.csv: give --interlocks")
+    acts = read_actions(a_path, [b.name for b in st.booms])
+    agree(acts, rows, trajectory)
+    return acts, read_interlocks(i_path, acts)
+
+
+def _execution(st, rows, plan, acts, locks, execute, seed, spacing_m, levels, report) -> dict:
+    L = np.linalg.norm(plan.toe - plan.collar, axis=1)
+    spec = dict(zip(plan.ids, st.drill_times(L).sum(1), strict=True))
+    spec = {h: float(v) for h, v in spec.items() if np.isfinite(v)}
+    drill = acts.kind == "drill"
+    dr = draws(list(acts.hole[drill]), acts.boom[drill], acts.booms, execute or 0, seed, execute is not None)
+    out = check_executed(st, rows, acts, locks, graph(acts, locks), dr, spec, spacing_m, levels)
+    report["violations"] += out.pop("messages")
+    report["not_certified"] += out.pop("unclear")
+    return {"checked": True, "seed": seed, **out}
 
 
 def _motion(st, trajectory, spacing_m, levels, given, head, rows=None) -> dict:
@@ -215,6 +254,11 @@ def main(argv=None) -> int:
     ap.add_argument("--levels", type=int, default=4, help="refinements (x8 each) of an interval not yet certified")
     ap.add_argument("--trajectory-only", action="store_true",
                     help="the motion alone (no round table, JSON or plan): no hole and no makespan check")
+    ap.add_argument("--actions", help="the actions file (default <stem>_actions.csv, checked when there)")
+    ap.add_argument("--interlocks", help="the interlocks file (default <stem>_interlocks.csv)")
+    ap.add_argument("--execute", type=int, default=None, metavar="N",
+                    help="N random draws (0.7-1.5x drilling), each hole alone at 3x, each boom slow")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the random draws")
     args = ap.parse_intermixed_args(argv)
     bad = [o for o in args.overrides if "=" not in o]
     if bad:
@@ -222,7 +266,8 @@ def main(argv=None) -> int:
         return 2
     try:
         out = check(args.trajectory, args.overrides, args.round_csv, args.summary, args.plan, args.spacing_m,
-                    args.collar_tol_mm, args.angle_tol_deg, args.levels, args.trajectory_only)
+                    args.collar_tol_mm, args.angle_tol_deg, args.levels, args.trajectory_only, args.actions,
+                    args.interlocks, args.execute, args.seed)
     except InputError as e:
         print(f"check_round: {e}", file=sys.stderr)
         return 2

@@ -13,6 +13,9 @@ above the safety distance implies; otherwise no floor is claimed). With clearanc
 and travel tau over the interval, ``c(t) >= max(c0 - tau s, c1 - tau (1 - s))``, whose least value is
 ``min(c0, c1, (c0 + c1 - tau) / 2)``. Where that floor is short of the requirement (< 0) and the two
 samples are not, the interval is split (``split`` parts, ``levels`` times) and judged again.
+
+``pairs_only``: boom-boom keys alone (an executed window of two booms: their own clearances do not
+depend on timing and are checked once on the trajectory file).
 """
 
 from __future__ import annotations
@@ -49,14 +52,15 @@ class Result:
 
 class Sweep:
     def __init__(self, st: Settings, rows: dict[str, BoomRows], spacing: float, levels: int = 4, split: int = 8,
-                 chunk: int = 20000, refine_cap: int = 2_000_000):
+                 chunk: int = 20000, refine_cap: int = 2_000_000, pairs_only: bool = False):
         self.st, self.spacing, self.levels, self.split = st, spacing, levels, split
+        self.own = not pairs_only  # self and tunnel keys
         self.chunk, self.cap = chunk, refine_cap
         self.rows = [rows[b.name] for b in st.booms]
         self.lever = [b.model.lever(b.model.d_extent(r.q)) for b, r in zip(st.booms, self.rows, strict=True)]
         self.keys: list[Key] = []
         self.tunnel_groups = []  # (key indices, offsets to raw distances, boom, body)
-        for bi, b in enumerate(st.booms):
+        for bi, b in enumerate(st.booms if self.own else ()):
             if b.model.self_pairs:
                 self.keys.append(Key("self", (bi,)))
             for ki, body in enumerate(b.model.bodies):
@@ -94,6 +98,8 @@ class Sweep:
             m = b.model
             P = m.body_points(m.frames(q)) + b.base
             pts.append(P)
+            if not self.own:
+                continue
             if m.self_pairs:
                 gaps = [segment_distance(P[:, i, 0], P[:, i, 1], P[:, j, 0], P[:, j, 1])
                         - m.bodies[i].radius - m.bodies[j].radius for i, j in m.self_pairs]
@@ -118,7 +124,7 @@ class Sweep:
         per = [np.abs(q1 - q0) @ lev.T
                for q0, q1, lev in zip(self.states(t0), self.states(t1), self.lever, strict=True)]
         cols = []
-        for bi, b in enumerate(self.st.booms):
+        for bi, b in enumerate(self.st.booms if self.own else ()):
             if b.model.self_pairs:
                 cols.append(np.max([per[bi][:, i] + per[bi][:, j] for i, j in b.model.self_pairs], 0))
             for ki in range(len(b.model.bodies)):
