@@ -31,6 +31,7 @@ class RoundSettings:
     """``conf/round/<name>.yaml``."""
 
     solution_limit: int = field(default=200, metadata=rule(ge=1))
+    search_checks: int = field(default=200_000, metadata=rule(ge=1))
     time_limit_s: float | None = field(default=None, metadata=rule(gt=0))
     first_solution: str = field(default="PARALLEL_CHEAPEST_INSERTION", metadata=rule(choices=FIRST_SOLUTIONS))
     span_cost: int = field(default=100, metadata=rule(ge=0))

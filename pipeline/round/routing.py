@@ -59,8 +59,11 @@ class Routes:
 
 
 def _search_parameters(settings: RoundSettings, time_limit_s: float | None):
-    """Guided local search stopped after ``solution_limit`` solutions: a count, so the same model gives
-    the same routes on any machine (OR-Tools' routing search is single-threaded and deterministic).
+    """Guided local search stopped after ``solution_limit`` solutions or ``search_checks`` limit checks
+    (:func:`route` counts them: OR-Tools checks its limits at every neighbour it explores, so this bounds
+    the work even where no new solution is found, e.g. a route of one hole, where the search would
+    otherwise never end): counts, so the same model gives the same routes on any machine (OR-Tools'
+    routing search is single-threaded and deterministic).
     A time limit (``time_limit_s`` here, else ``settings.time_limit_s``) is opt-in and stops it
     earlier on a busy machine: not reproducible."""
     from ortools.constraint_solver import pywrapcp, routing_enums_pb2
@@ -132,6 +135,13 @@ def route(inst: Instance, settings: RoundSettings, same_boom: Mapping[tuple[int,
             ids = [manager.NodeToIndex(node_of[i]), manager.NodeToIndex(node_of[j])]
             model.AddSoftSameVehicleConstraint(ids, int(round(cost * MS * max(settings.span_cost, 1))))
     params = _search_parameters(settings, time_limit_s)
+    checks = [0]
+
+    def out_of_work() -> bool:  # OR-Tools asks at every neighbour explored: a count of work, reproducible
+        checks[0] += 1
+        return checks[0] >= settings.search_checks
+
+    model.AddSearchMonitor(solver.CustomLimit(out_of_work))
     solution = None
     if initial is not None:
         model.CloseModelWithParameters(params)
