@@ -45,6 +45,8 @@ from pipeline.core.io import require_writable, save_figure, write_csv, write_tex
 from pipeline.core.settings import RuntimeSettings, coerce, parse, rule
 from pipeline.core.stage import run_stage
 from pipeline.data.holes import joint_box
+from pipeline.execution.montecarlo import parse_execution
+from pipeline.execution.robust import robust_finish
 from pipeline.motion.timing import rig_motions
 from pipeline.plans.model import COLLAR
 from pipeline.plans.reach import reach_table, rig_solvers
@@ -75,7 +77,9 @@ class ScheduleSettings:
     bench_faces: list = field(default_factory=lambda: ["demo", 50, 100, 150])
     bench_rigs: list = field(default_factory=lambda: ["single", "twin", "trio"])
     bench_seed: int = 0
-    strict: bool = False  # true: exit 1 (after writing the set) on conflicts left, failed moves or the fallback
+    strict: bool = False  # true: exit 1 (after writing the set) on conflicts left, failed moves, the fallback,
+    # or a round the interlocks cannot make robust
+    interlocks: bool = True  # the round executed by events: actions, interlocks, draws (pipeline.execution)
 
 
 def _progress(enabled: bool):
@@ -99,6 +103,7 @@ def run(cfg: DictConfig) -> dict:
     if settings.benchmark:
         return run_benchmark(cfg, settings)
     round_settings = parse_round(as_dict(cfg.round), "round")
+    execution = parse_execution(as_dict(cfg.execution), "execution")
     hybrid = parse(HybridSettings, cfg.solver, "solver")
     tracking = TrackingSettings.from_config(cfg.tracking)
     runtime = RuntimeSettings.from_config(cfg)
@@ -131,14 +136,19 @@ def run(cfg: DictConfig) -> dict:
                                   joint_box(rig.booms[0].boom, None if box is None else as_dict(box)))
             reach = reach_table(plan, rig, solvers, "hybrid")
             say(f"reach table: {len(plan)} holes x {len(rig)} booms")
+            finish = robust_finish(execution, say) if settings.interlocks and len(rig) > 1 else None
             res = schedule_round(rig, plan, reach, motions, round_settings, settings.baselines,
-                                 settings.check_moves, say)
+                                 settings.check_moves, say, finish)
         finally:
             close()
         table = with_invalid_rows(res.round, plan)
         summary = {"plan": str(plan_path), **res.summary, "invalid_rows": len({p.row for p in plan.problems})}
         # wall-clock seconds go to MLflow only: the round JSON is DVC-tracked and must reproduce
         timings = {**res.timings, "reach_solve_s": reach.summary()["solve_s"]}
+        executed = res.finished
+        if executed is not None:
+            summary["execution"] = executed.summary
+            timings.update({f"interlocks.{k}": v for k, v in executed.extra["timings"].items()})
         collars = plan.holes[COLLAR].to_numpy(float)
         writers = {"round": lambda p: write_csv(spreadsheet_safe(table), p),
                    "trajectory": lambda p: write_csv(res.trajectory, p)}
@@ -155,11 +165,28 @@ def run(cfg: DictConfig) -> dict:
             writers["gantt"] = lambda p: save_figure(gantt, p)
             mlrun.log_figure(face, "round_face.png")
             mlrun.log_figure(gantt, "round_gantt.png")
+        if executed is not None:
+            writers["actions"] = lambda p: write_csv(spreadsheet_safe(executed.actions), p)
+            writers["interlocks"] = lambda p: write_csv(executed.interlocks, p)
+            if settings.figures:
+                from pipeline.execution.robust import realised_makespans_figure
+
+                realised_fig = realised_makespans_figure(executed, f"rig {rig.name}: the round executed by events")
+                writers["executed"] = lambda p: save_figure(realised_fig, p)
+                mlrun.log_figure(realised_fig, "round_executed.png")
         if settings.replay:
             from pipeline.round.figures import replay_html
 
             writers["replay"] = lambda p: write_text(replay_html(res.trajectory, rig, collars,
                                                                  settings.replay_frames), p)
+            if executed is not None and executed.realised is not None:
+                from pipeline.round.tables import trajectory_table
+
+                r_inst, r_tl = executed.realised
+                r_traj = trajectory_table(r_inst, r_tl, res.oracle, rig.booms[0].boom.joint_names)
+                label = f"realised: {executed.realised_label} (waits at interlocks shown)"
+                writers["executed_replay"] = lambda p: write_text(
+                    replay_html(r_traj, rig, collars, settings.replay_frames, label), p)
         mlrun.log_metrics({**metrics(summary), **{f"timing.{k}": v for k, v in timings.items()}})
         mlrun.log_table(table, "round.json")
         mlrun.log_table(res.trajectory, "trajectory.json")
@@ -177,6 +204,12 @@ def run(cfg: DictConfig) -> dict:
         log.warning("round of rig %s: %s (%d of %d holes drilled; the round table says why)", rig.name,
                     summary["status"], summary["holes_drilled"], len(plan))
     unsafe = round_problems(summary)
+    if executed is not None:
+        ex = summary["execution"]
+        log.info("executed by events: %d interlocks; %d draws, %d deadlocks; makespan p95 %.3f x nominal; standing "
+                 "at interlocks p95 %.2f %% of the makespan", ex["interlocks"]["interlocks"], ex["draws"],
+                 ex["deadlocks"], (ex["random"] or {}).get("makespan_ratio_p95", float("nan")),
+                 100 * (ex["random"] or {}).get("standing_share_p95", float("nan")))
     for m in summary.get("moves_not_clear", []):
         log.warning("move not certified clear (event move_unclear in %s): boom %s %s -> %s: %s",
                     files["trajectory"].name, m["boom"], m["from"], m["to"], m["reason"])
@@ -196,6 +229,11 @@ def round_problems(summary: dict) -> list[str]:
         out.append(f"{summary['moves_failed']} move(s) not certified clear (move_unclear)")
     if summary.get("sequential_fallback"):
         out.append("the one-boom-at-a-time fallback was used")
+    ex = summary.get("execution")
+    if ex is not None and not ex["robust"]:
+        out.append(f"the interlocks cannot make the round robust: {ex['problem']}")
+    if ex is not None and ex["deadlocks"]:
+        out.append(f"the interlocks deadlock in {ex['deadlocks']} draw(s)")
     return out
 
 

@@ -11,6 +11,8 @@ import pytest
 import torch
 from fk_rounds import boom_joints
 
+from pipeline.assembly.rig import load_rig
+from pipeline.core.config import load_group_file
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.execution.actions import (
     Actions,
@@ -26,9 +28,8 @@ from pipeline.execution.interlocks import robust_round
 from pipeline.execution.montecarlo import ExecutionSettings, draws, parse_execution, run, summary
 from pipeline.execution.sweeps import conflicts
 from pipeline.geometry.boom_pair import BoomPair
-from pipeline.geometry.rig import load_rig
 from pipeline.motion.path import travel
-from pipeline.motion.timing import load_motion, profile
+from pipeline.motion.timing import motion_from_config, profile
 from pipeline.round.instance import RoundSettings
 from pipeline.round.kinematic import kinematic_round
 from pipeline.round.tables import trajectory_table
@@ -48,7 +49,7 @@ def twin(safety):
 @pytest.fixture(scope="module")
 def round_(twin, jumbo8):
     """Holes 0 (L's middle), 1 (R's middle), then 4 of L's and 4 of R's; L drills 0, 2..5, R 1, 6..9."""
-    motion = load_motion(jumbo8)
+    motion = motion_from_config(load_group_file("motion", "jumbo8"), jumbo8)
     qL = torch.cat([torch.tensor([MID_L], dtype=D), boom_joints(4, 0, 180)])
     qR = torch.cat([torch.tensor([MID_R], dtype=D), boom_joints(4, 1, 0)])
     nan = torch.full((5, 8), math.nan, dtype=D)

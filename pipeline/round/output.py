@@ -1,7 +1,10 @@
 """The round's files as one set, checked before any work and published whole.
 
 ``<stem>_round.csv`` (the round table), ``<stem>_trajectory.csv`` (spec section 7), ``<stem>_round.json``
-(the summary), ``<stem>_round_face.png``, ``<stem>_round_gantt.png`` and ``<stem>_round_replay.html``.
+(the summary), ``<stem>_round_face.png``, ``<stem>_round_gantt.png`` and ``<stem>_round_replay.html``;
+for a rig of several booms also ``<stem>_actions.csv`` and ``<stem>_interlocks.csv`` (spec section 8),
+``<stem>_round_executed.png`` (realised makespans) and ``<stem>_round_executed_replay.html`` (the
+slowest drawn round, executed by events).
 
 - **Before any work** (:func:`round_paths`): ``out`` is a folder or a ``<stem>_round.csv`` (or
   ``<stem>.csv``) name; no file of the set may be an input (the drill plan, after resolving links and
@@ -23,7 +26,10 @@ from pipeline.core.errors import InputError
 from pipeline.core.io import file_md5, publish, same_file, staged_folder, write_json
 
 SUFFIXES = {"round": "_round.csv", "trajectory": "_trajectory.csv", "json": "_round.json",
-            "face": "_round_face.png", "gantt": "_round_gantt.png", "replay": "_round_replay.html"}
+            "face": "_round_face.png", "gantt": "_round_gantt.png", "replay": "_round_replay.html",
+            # executed by events (spec section 8): the actions and interlocks files, realised makespans
+            "actions": "_actions.csv", "interlocks": "_interlocks.csv", "executed": "_round_executed.png",
+            "executed_replay": "_round_executed_replay.html"}
 
 
 @dataclass(frozen=True)

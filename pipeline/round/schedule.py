@@ -49,6 +49,8 @@ class RoundResult:
     summary: dict
     moves: list[dict] = field(default_factory=list)
     timings: dict = field(default_factory=dict)  # wall-clock seconds: not in the summary (it reproduces)
+    timeline: Timeline | None = None  # the round written: the plan's, or what ``finish`` made of it
+    finished: object = None  # ``finish``'s extra (the executed round's tables and draws)
 
 
 def _joints(reach: Reach, rig: Rig, b: int, n_holes: int) -> torch.Tensor:
@@ -101,8 +103,11 @@ def round_instance(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
 
 
 def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: RoundSettings,
-                   baselines: bool = True, moves: bool = True, say=None) -> RoundResult:
-    """Plan the round of ``plan`` on ``rig`` from its reach table (module docstring)."""
+                   baselines: bool = True, moves: bool = True, say=None, finish=None) -> RoundResult:
+    """Plan the round of ``plan`` on ``rig`` from its reach table (module docstring). ``finish``:
+    ``(instance, timeline, oracle) -> (timeline, extra)``, called on the planned round; the tables and
+    the summary are written from the timeline it returns (the execution layer's robust round, re-timed
+    by events: :func:`pipeline.execution.robust.robust_finish`), ``extra`` kept as ``RoundResult.finished``."""
     say = say or (lambda _m: None)
     inst, oracle, joints = round_instance(rig, plan, reach, motions, settings)
     started = time.perf_counter()
@@ -115,23 +120,24 @@ def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
     inst = rp.inst if rp.book is None else rp.book.apply(rp.inst)  # the baselines' detours too
     names = rig.booms[0].boom.joint_names
     kinds, not_clear = move_report(inst, rp, rig) if moves else (None, [])
-    table = round_table(inst, rp.timeline, [j.numpy() for j in joints], names)
-    failed = rp.book.kinds(rp.timeline.routes)[1] if rp.book is not None else []
-    traj = trajectory_table(inst, rp.timeline, oracle, names, failed)
+    final, finished = (rp.timeline, None) if finish is None else finish(inst, rp.timeline, oracle)
+    table = round_table(inst, final, [j.numpy() for j in joints], names)
+    failed = rp.book.kinds(final.routes)[1] if rp.book is not None else []
+    traj = trajectory_table(inst, final, oracle, names, failed)
 
     def extra(tl):
         return None if tl is None else {"waits": len(tl.repairs), "conflicts_left": tl.conflicts_left,
                                         "moving_s": sum(_times(inst, tl, b)["moving_s"] for b in range(len(rig))),
                                         "waiting_s": sum(_times(inst, tl, b)["waiting_s"] for b in range(len(rig)))}
 
-    s = summary(inst, rp.timeline, rp.lower_bound_s, naive, nearest, [m.base for m in rig.booms], rig.d_boom, kinds,
+    s = summary(inst, final, rp.lower_bound_s, naive, nearest, [m.base for m in rig.booms], rig.d_boom, kinds,
                 rig=rig.name, stopped=rp.stopped,
                 routing_solves=rp.rounds, seed=rp.seed, kept_seed=rp.kept_seed,
                 naive_round=extra(naive),
                 nearest_round=extra(nearest), moves_failed=len(failed), moves_not_clear=not_clear,
-                certified_floor_m={**(rp.book.floors(rp.timeline.routes) if rp.book is not None else
+                certified_floor_m={**(rp.book.floors(final.routes) if rp.book is not None else
                                       {"self": None, "tunnel": None}),
-                                   "boom": boom_floor(rp.timeline, oracle.floor)},
+                                   "boom": boom_floor(final, oracle.floor)},
                 margin_m={**({k: rp.book.margin[k] for k in ("self", "tunnel")} if rp.book is not None else
                              {"self": None, "tunnel": None}), "boom": 0.0},
                 reproducible=settings.reproducible)
@@ -139,7 +145,7 @@ def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
     s["waiting_s"] = sum(v["waiting_s"] for v in s["booms"].values())
     timings = {"planning_s": rp.planning_s, "baselines_s": rp.baselines_s, "total_s": time.perf_counter() - started,
                "moves_s": rp.book.seconds if rp.book is not None else 0.0}
-    return RoundResult(inst, oracle, rp, naive, nearest, table, traj, s, not_clear, timings)
+    return RoundResult(inst, oracle, rp, naive, nearest, table, traj, s, not_clear, timings, final, finished)
 
 
 def _times(inst, tl, b):
