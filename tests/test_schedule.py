@@ -52,7 +52,8 @@ def small_round(face_plan, make_cfg):
 def test_the_three_files_and_figures_are_written(small_round):
     tmp, _, summary, _ = small_round
     for suffix in ("_round.csv", "_trajectory.csv", "_round.json", "_round_face.png", "_round_gantt.png",
-                   "_round_replay.html"):
+                   "_round_replay.html", "_actions.csv", "_interlocks.csv", "_round_executed.png",
+                   "_round_executed_replay.html"):
         assert (tmp / f"small{suffix}").stat().st_size > 0, suffix
     on_disk = json.loads((tmp / "small_round.json").read_text())
     for key in ("makespan_s", "lower_bound_s", "naive_makespan_s", "nearest_makespan_s", "min_boom_clearance_m",
@@ -104,6 +105,24 @@ def test_independent_checker_on_the_trajectory_file(small_round):
     assert out["min_boom_distance_m"] < 0.3 + 1.0  # the booms come close on this face: not vacuous
     assert set(out["booms"]) == {"L", "R"} and out["instants"] > 1000
     assert summary["moves"]["failed"] == len(summary["moves_not_clear"]) == 0
+
+
+def test_the_round_runs_by_events_and_the_independent_checker_executes_it(small_round):
+    """Spec section 8: the stage writes the actions and interlocks files; the independent checker (its own
+    execution rule and geometry) executes 300 random draws of 0.7-1.5x, every hole alone at 3x and each
+    boom slow while the other is quick: no deadlock, no break of d_boom, and with the spec's durations
+    the execution reproduces the trajectory file. The stage's own draws say the same."""
+    tmp, _, summary, _ = small_round
+    assert (tmp / "small_actions.csv").stat().st_size > 0 and (tmp / "small_interlocks.csv").exists()
+    ex = summary["execution"]
+    assert ex["robust"] and ex["deadlocks"] == 0 and ex["interlocks"]["conflicts_left"] == 0
+    assert ex["nominal_makespan_s"] == pytest.approx(summary["makespan_s"])
+    stage = ["experiment=tiny", f"paths.data={tmp}/data", *FAST, f"plan={tmp / 'small.csv'}"]
+    out = _script("check_round").check(tmp / "small_trajectory.csv", stage, execute=300)
+    run = out["execution"]
+    assert run["checked"] and not out["violations"], out["violations"]
+    assert run["deadlocks"] == 0 and run["violating_draws"] == 0 and run["draws"] >= 300 + summary["holes_drilled"]
+    assert run["makespan_s"]["nominal"] == pytest.approx(run["makespan_s"]["trajectory"], abs=1.0)
 
 
 def test_joint_speeds_respected_between_trajectory_rows(small_round, jumbo8):
@@ -297,14 +316,16 @@ def test_small_round_json_reports_certified_floors_at_least_the_margins(small_ro
 
 def test_two_runs_of_the_same_command_write_the_same_bytes(face_plan, make_cfg):
     """Counts, not wall time, limit the planning: every output of a second run, into the same place,
-    has the first run's MD5 (round and trajectory CSV, JSON, both PNGs, the replay HTML)."""
+    has the first run's MD5 (round and trajectory CSV, JSON, the PNGs, the replays, the actions and
+    interlocks files)."""
     from pipeline.core.io import file_md5
 
     tmp, holes = face_plan
     plan = tmp / "twice.csv"
     holes.iloc[1::9].reset_index(drop=True).to_csv(plan, index=False)
-    names = [f"twice{s}" for s in ("_round.csv", "_trajectory.csv", "_round.json", "_round_face.png",
-                                   "_round_gantt.png", "_round_replay.html")]
+    from pipeline.round.output import SUFFIXES
+
+    names = [f"twice{s}" for s in SUFFIXES.values()]  # the executed round's files too (actions, interlocks, ...)
     runs = []
     for _ in range(2):
         schedule.run(make_cfg(tmp, *FAST, f"plan={plan}"))
