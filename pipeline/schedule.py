@@ -14,9 +14,14 @@ and its baselines, and writes beside the plan (or into ``out``, a folder or a ``
   hole once, unreadable rows as ``invalid``);
 - ``<stem>_trajectory.csv``: the spec's trajectory file, every boom park to park;
 - ``<stem>_round.json``: makespan, lower bound, baselines, clearance, per boom times, moves by kind;
-- ``<stem>_round_face.png``, ``<stem>_round_gantt.png``, ``<stem>_round_replay.html``.
+- ``<stem>_round_face.png``, ``<stem>_round_gantt.png``, ``<stem>_round_replay.html``;
+- for a rig of several booms (``schedule.interlocks``), the round executed by events (spec section 8,
+  :mod:`pipeline.execution.robust`): ``<stem>_actions.csv``, ``<stem>_interlocks.csv``,
+  ``<stem>_round_executed.png`` and ``<stem>_round_executed_replay.html``; the trajectory is then the
+  round re-timed by its interlocks, and the JSON's ``execution`` holds the drawn rounds' summary.
 
-The set is written into a private folder and published under one lock (:func:`pipeline.core.io.publish`),
+``out`` is checked before any work (:mod:`pipeline.round.output`); the set is written into a private
+folder and published under one lock, its JSON last with the MD5 of each sibling (:func:`pipeline.core.io.publish`),
 so an interrupt (Ctrl-C, SIGTERM) leaves the previous set or none, never half of one; the MLflow run
 ends KILLED (:func:`pipeline.tracking.runs.stage_run`).
 
@@ -126,7 +131,8 @@ def run(cfg: DictConfig) -> dict:
     with stage_run(tracking, f"schedule-{plan_path.stem}-{rig.name}",
                    {"stage": "schedule", "plan": str(plan_path), "rig": rig.name}) as mlrun:
         mlrun.log_params({"plan": str(plan_path), "rig": rig.name, "schedule": asdict(settings),
-                          "round": as_dict(cfg.round), "solver": as_dict(cfg.solver)})
+                          "round": as_dict(cfg.round), "execution": as_dict(cfg.execution),
+                          "motion": as_dict(cfg.motion), "solver": as_dict(cfg.solver)})
         mlrun.log_dataset(plan.holes, plan_path, "drill plan")
 
         first_start = first_starts(source, settings.network, tracking.uri, "schedule.model_uri")

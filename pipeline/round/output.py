@@ -88,7 +88,7 @@ def write_round_set(paths: RoundPaths, summary: dict, writers: Mapping[str, Call
     """Stage every file ``writers`` names (kind -> ``write(path)``), then the summary with the MD5 of
     each (``files``), call ``log_staged`` (kind -> staged path: MLflow logs from there), and publish the
     set under its lock; an earlier set's files of kinds not written are removed. Returns the summary."""
-    unknown = set(writers) - set(SUFFIXES) | ({"json"} & set(writers))
+    unknown = (set(writers) - set(SUFFIXES)) | (set(writers) & {"json"})  # the summary is written here, last
     if unknown:
         raise ValueError(f"write_round_set: not a file of the set written by a writer: {sorted(unknown)}")
     paths.folder.mkdir(parents=True, exist_ok=True)
