@@ -330,3 +330,279 @@ def test_episode_floors_lie_under_a_dense_brute_force(base):
             assert best < st.d_boom + 0.05, (i, j, best)  # a sample below it; dense points within their spacing
         elif fl.floor[i, j] < 5:  # a floor that clears is not vacuous where the episodes are near
             assert fl.floor[i, j] >= min(st.d_boom, best - 0.05), (i, j, fl.floor[i, j], best)
+
+
+# -- realised sets (--realised): made here from the planned files, re-timed per action ------------
+
+def execute_by_hand(acts: pd.DataFrame, locks: pd.DataFrame, factor: dict) -> pd.DataFrame:
+    """The execution rule, written out plainly (a second method, not the checker's): actions taken in
+    planned start order (a topological order: every interlock and sequence edge points forward in the
+    plan), each starting once its boom's previous action and every action ``locks`` makes it wait for
+    have ended; a move keeps its duration, drill ``(boom, action)`` takes ``factor`` times its own."""
+    acts = acts.assign(S=np.nan, E=np.nan)
+    end = {}
+    for i in acts.sort_values(["t_start", "t_end"]).index:
+        a = acts.loc[i]
+        key = (a["boom"], int(a["action"]))
+        ready = [end.get((a["boom"], key[1] - 1), 0.0)]
+        ready += [end[(x, int(y))] for x, y in
+                  locks[(locks["boom"] == key[0]) & (locks["action"] == key[1])][["after_boom", "after_action"]]
+                  .itertuples(index=False)]
+        dur = (a["t_end"] - a["t_start"]) * factor.get(key, 1.0)
+        acts.loc[i, ["S", "E"]] = max(ready), max(ready) + dur
+        end[key] = max(ready) + dur
+    return acts
+
+
+def realise(tmp, name, acts, locks, factor, obey=None, table=None, stem="small"):
+    """A realised set ``<stem>_executed_*`` in ``tmp/name`` from the planned one in ``tmp``: the
+    actions executed by hand (:func:`execute_by_hand`, obeying ``obey``, default all ``locks``),
+    each action's planned rows moved to its realised start and stretched by its own factor (a move
+    keeps its pace, a drill's collar/drill/retract rows scale together), a pause carried by the rows
+    either side of it; the round table and actions at the realised times; ``locks`` as the
+    interlocks file; ``table`` changes the realised round table. Returns the trajectory's path and
+    the realised actions."""
+    dst = tmp / name
+    dst.mkdir()
+    traj = pd.read_csv(tmp / f"{stem}_trajectory.csv", keep_default_na=False, dtype={"hole_id": str})
+    done = execute_by_hand(acts, locks if obey is None else obey, factor)
+    parts = []
+    for boom, g in traj.groupby("boom", sort=False):
+        parts.append(g.iloc[:1])  # the park row at t = 0
+        for _, a in done[done["boom"] == boom].sort_values("action").iterrows():
+            inside = g[(g["t"] >= a["t_start"] - 1e-9) & (g["t"] <= a["t_end"] + 1e-9)].copy()
+            scale = (a["E"] - a["S"]) / (a["t_end"] - a["t_start"])
+            inside["t"] = a["S"] + (inside["t"] - a["t_start"]) * scale
+            if a["kind"] == "move":  # a move ends on the collar row of the drill it leads to: there it waits
+                ends = inside["event"].isin(["collar", "drill", "retract"])
+                inside.loc[ends, ["event", "hole_id"]] = ["wait", ""]
+            parts.append(inside)
+    out = pd.concat(parts, ignore_index=True)
+    # a row shared by two actions (or by the park row and a first action at t = 0) appears twice when
+    # no pause parts them, the same joints at the same realised time: keep the later action's
+    same_t = (out["boom"] == out["boom"].shift(-1)) & (out["t"].shift(-1) - out["t"] <= 1e-9)
+    assert np.allclose(out.loc[same_t, JOINTS].to_numpy(), out.shift(-1).loc[same_t, JOINTS].to_numpy())
+    out = out[~same_t]
+    out.to_csv(dst / f"{stem}_executed_trajectory.csv", index=False)
+    r = pd.read_csv(tmp / f"{stem}_round.csv", keep_default_na=False)
+    drills = done[done["kind"] == "drill"].set_index("hole_id")
+    r["t_start"] = r["hole_id"].map(drills["S"]).fillna(r["t_start"])
+    r["t_end"] = r["hole_id"].map(drills["E"]).fillna(r["t_end"])
+    (table(r) if table else r).to_csv(dst / f"{stem}_executed_round.csv", index=False)
+    s = json.loads((tmp / f"{stem}_round.json").read_text())
+    s.update({"makespan_s": float(out["t"].max()), "realised": True})
+    (dst / f"{stem}_executed.json").write_text(json.dumps(s))
+    real = done.assign(t_start=done["S"], t_end=done["E"]).drop(columns=["S", "E"])
+    real.to_csv(dst / f"{stem}_executed_actions.csv", index=False)
+    locks.to_csv(dst / f"{stem}_executed_interlocks.csv", index=False)
+    return dst / f"{stem}_executed_trajectory.csv", real
+
+
+def _realised(base, name, factor, **kw):
+    tmp, _, acts, locks = base
+    return realise(tmp, name, acts, locks, factor, **kw)
+
+
+def _edit(path, change):
+    """Rewrite the CSV at ``path`` through ``change`` (a DataFrame -> DataFrame)."""
+    df = pd.read_csv(path, keep_default_na=False, dtype={"hole_id": str})
+    change(df).to_csv(path, index=False)
+
+
+def _hole(acts, boom, action):
+    return acts[(acts["boom"] == boom) & (acts["action"] == action)].iloc[0]
+
+
+def test_a_realised_round_with_a_stretched_drill_passes(base):
+    """L's first drill at 1.3x, L's later actions shifted, R's first move (interlocked after it) later."""
+    acts = base[2]
+    c01 = _hole(acts, "L", 1)
+    traj, real = _realised(base, "real_good", {("L", 1): 1.3})
+    rc, report, err = _run(base, traj, "--realised")
+    assert rc == 0, (err, report and report["violations"][:5])
+    f = report["realised"]["factor"]
+    assert f["max"] == pytest.approx(1.3, abs=1e-9) and f["min"] == pytest.approx(1.0, abs=1e-9)
+    assert report["realised"]["factor_per_hole"][c01["hole_id"]] == pytest.approx(1.3, abs=1e-9)
+    assert report["realised"]["interrupted"] == [] and report["holes"]["drilled"] == 6
+    ex_ = report["execution"]
+    assert ex_["checked"] and ex_["interlocks_broken"] == 0 and ex_["interlock_rows"] == len(base[3])
+    # not vacuous: R's first move did wait for the stretched drill (an interlock held with no slack)
+    r0 = _hole(real, "R", 0)
+    assert r0["t_start"] == pytest.approx(_hole(real, "L", 1)["t_end"])
+    assert r0["t_start"] > _hole(acts, "R", 0)["t_start"] + 20
+    assert ex_["least_interlock_slack_s"] == pytest.approx(0.0, abs=1e-6)
+    planned = json.loads((base[0] / "small_round.json").read_text())["makespan_s"]
+    assert report["makespan_s"] == pytest.approx(planned + 0.3 * (c01["t_end"] - c01["t_start"]), abs=1e-6)
+
+
+def test_a_realised_set_needs_realised_and_refuses_draws(base):
+    traj, _ = _realised(base, "real_flags", {("L", 1): 1.3})
+    _fails(base, traj, "a realised set (small_executed.json beside it", "check it with --realised", code=2, extra=())
+    _fails(base, traj, "small_executed.json", "\"realised\": true", "--realised", code=2,
+           extra=("--round", str(traj.with_name("small_executed_round.csv")), "--summary",
+                  str(traj.with_name("small_executed.json"))))
+    _fails(base, traj, "--execute with --realised", code=2, extra=("--realised", "--execute", "3"))
+    _fails(base, traj, "--draws with --realised", code=2, extra=("--realised", "--draws", str(traj)))
+    planned = base[0] / "small_trajectory.csv"
+    _fails(base, planned, "not named <stem>_executed_trajectory.csv", code=2, extra=("--realised",))
+    _fails(base, planned, "small_round.json", "no \"realised\": true", code=2,
+           extra=("--realised", "--round", str(base[0] / "small_round.csv"), "--summary",
+                  str(base[0] / "small_round.json")))
+
+
+def test_a_realised_drill_whose_parts_scale_by_different_factors(base):
+    c01 = _hole(base[2], "L", 1)
+    traj, _ = _realised(base, "real_parts", {("L", 1): 1.3})
+
+    def later_retract(t):  # the drilling part 2 s longer, the retraction 2 s shorter: same total
+        k = t.index[(t["boom"] == "L") & (t["event"] == "retract") & (t["hole_id"] == c01["hole_id"])][0]
+        t.loc[k, "t"] += 2.0
+        return t
+
+    _edit(traj, later_retract)
+    _fails(base, traj, f"hole {c01['hole_id']}: collaring, drilling, retraction last", "times one factor",
+           "the whole drill 1.300000x", extra=("--realised",))
+
+
+def test_a_realised_actions_file_whose_drill_disagrees_with_the_trajectory(base):
+    c01 = _hole(base[2], "L", 1)
+    traj, _ = _realised(base, "real_actions", {("L", 1): 1.3})
+
+    def planned_duration(a):  # the executor wrote the planned drilling time, not the realised one
+        k = a.index[(a["boom"] == "L") & (a["action"] == 1)][0]
+        a.loc[k, "t_end"] = a.loc[k, "t_start"] + (c01["t_end"] - c01["t_start"])
+        return a
+
+    _edit(traj.with_name("small_executed_actions.csv"), planned_duration)
+    planned = c01["t_end"] - c01["t_start"]
+    _fails(base, traj, f"boom L, hole {c01['hole_id']}: its drill action", f"lasts {planned:.6f} s, its drilling",
+           f"{1.3 * planned:.6f} s", "do not follow its actions", extra=("--realised",))
+
+
+def test_an_interlock_broken_by_the_realised_times(base):
+    """The executor let R's first move start at its planned time, not waiting for L's stretched drill."""
+    tmp, _, acts, locks = base
+    wait = _first_wait(acts)
+    ignored = locks[~((locks["boom"] == "R") & (locks["action"] == 0) & (locks["after_boom"] == "L")
+                      & (locks["after_action"] == wait["action"]))]
+    traj, real = _realised(base, "real_lock", {("L", int(wait["action"])): 1.3}, obey=ignored)
+    report, text = _fails(base, traj, "interlock", "R#0 (move to hole", "starts at",
+                          f"before L#{wait['action']} (drill {wait['hole_id']}) ends", extra=("--realised",))
+    assert report["execution"]["interlocks_broken"] >= 1 and report["execution"]["least_interlock_slack_s"] < -20
+
+
+def _interrupted(base, name, action=3, factor=0.4, collared=True, table=None):
+    """L's ``action`` (a drill) stopped at ``factor`` of its time and reported ``interrupted``; with
+    ``collared=False`` stopped before collaring ended: its collar row made a wait, no drill or
+    retract rows, the boom standing through the action."""
+    hole = _hole(base[2], "L", action)["hole_id"]
+
+    def report_it(r):
+        r.loc[r["hole_id"] == hole, "status"] = "interrupted"
+        return table(r) if table else r
+
+    traj, real = _realised(base, name, {("L", action): factor}, table=report_it)
+    if not collared:
+        def uncollar(t):
+            rows = t.index[(t["boom"] == "L") & (t["hole_id"] == hole)]
+            t.loc[rows[0], ["event", "hole_id"]] = ["wait", ""]
+            return t.drop(index=rows[1:])
+
+        _edit(traj, uncollar)
+    return traj, real, hole
+
+
+def test_an_interrupted_hole_is_reported_and_passes(base):
+    traj, _, hole = _interrupted(base, "real_stop")
+    rc, report, err = _run(base, traj, "--realised")
+    assert rc == 0, (err, report and report["violations"][:5])
+    assert report["realised"]["interrupted"] == [{"hole_id": hole, "boom": "L", "drilled": True,
+                                                  "factor": pytest.approx(0.4, abs=1e-9)}]
+    assert report["realised"]["factor"]["min"] == pytest.approx(0.4, abs=1e-9)
+    assert report["holes"]["reported_not_drilled"] == 1
+    traj, _, hole = _interrupted(base, "real_stop_early", collared=False)
+    rc, report, err = _run(base, traj, "--realised")
+    assert rc == 0, (err, report and report["violations"][:5])
+    assert report["realised"]["interrupted"] == [{"hole_id": hole, "boom": "L", "drilled": False, "factor": None}]
+    assert report["holes"]["drilled"] == 5
+
+
+def test_an_interrupted_hole_drilled_again(base):
+    """R's later drill renamed to L's interrupted hole (rows, actions, round table): drilled twice."""
+    other = _hole(base[2], "R", 3)["hole_id"]
+    traj, _, hole = _interrupted(base, "real_twice", table=lambda r: r[r["hole_id"] != other])
+    _edit(traj, lambda t: t.replace({"hole_id": {other: hole}}))
+    _edit(traj.with_name("small_executed_actions.csv"), lambda a: a.replace({"hole_id": {other: hole}}))
+    _fails(base, traj, f"hole {hole}: interrupted, yet drilled 2 times", "boom L at t=", "boom R at t=",
+           "never again by any boom", extra=("--realised",))
+
+
+def test_a_realised_hole_neither_drilled_nor_reported(base):
+    hole = _hole(base[2], "L", 3)["hole_id"]
+    traj, _, _ = _interrupted(base, "real_lost", collared=False, table=lambda r: r[r["hole_id"] != hole])
+    _fails(base, traj, f"hole {hole}: neither drilled nor reported in the round table", extra=("--realised",))
+
+
+def test_an_interrupted_status_in_a_planned_table_is_refused(base):
+    tmp = base[0]
+    traj = _set(base, "planned_stop")
+    _edit(traj.with_name("small_round.csv"), lambda r: r.assign(status=np.where(r.index == 0, "interrupted",
+                                                                                r["status"])))
+    _fails(base, traj, "small_round.csv: row 2: status 'interrupted'", "check it with --realised", code=2, extra=())
+    assert tmp.is_dir()
+
+
+# -- --draws: a planned round under exactly a file's draws ----------------------------------------
+
+def _draws(path, rows):
+    pd.DataFrame(rows, columns=["draw", "label", "hole_id", "factor"]).to_csv(path, index=False)
+    return path
+
+
+def test_a_draws_file_whose_draws_pass(base):
+    tmp, _, acts, locks = base
+    traj = _set(base, "draws_good")
+    drills = acts[acts["kind"] == "drill"]
+    c01 = _hole(acts, "L", 1)
+    rng = np.random.default_rng(5)
+    rows = [(0, "random", h, f) for h, f in zip(drills["hole_id"], rng.uniform(0.7, 1.5, len(drills)), strict=True)]
+    rows += [(1, f"stall {c01['hole_id']}", c01["hole_id"], 3.0)]
+    rows += [(2, "slow L", h, 1.5) for h in drills[drills["boom"] == "L"]["hole_id"]]
+    rows += [(3, "random", h, 0.8) for h in drills["hole_id"][:2]]
+    f = _draws(traj.with_name("draws.csv"), rows)
+    rc, report, err = _run(base, traj, "--draws", str(f))
+    assert rc == 0, (err, report and report["violations"][:5])
+    ex_ = report["execution"]
+    assert ex_["draws"] == 1 + 4 and ex_["draws_by_kind"]["file"] == 4 and ex_["draws_by_kind"]["random"] == 0
+    kinds = ex_["draws_file_by_kind"]
+    assert {k: v["draws"] for k, v in kinds.items()} == {"random": 2, "stall": 1, "slow": 1}
+    assert all(v["violating_draws"] == 0 for v in kinds.values())
+    # the stall draw's makespan is the hand execution's (a second method of the execution rule)
+    hand = execute_by_hand(acts, locks, {("L", 1): 3.0})["E"].max()
+    assert kinds["stall"]["makespan_s"]["max"] == pytest.approx(hand, abs=1e-6)
+    hand = execute_by_hand(acts, locks, {("L", int(a)): 1.5 for a in drills[drills["boom"] == "L"]["action"]})
+    assert kinds["slow"]["makespan_s"]["max"] == pytest.approx(hand["E"].max(), abs=1e-6)
+    rc, both, err = _run(base, traj, "--draws", str(f), "--execute", "3")  # with the checker's own draws too
+    assert rc == 0 and both["execution"]["draws"] == 1 + 3 + len(drills) + 2 + 4
+
+
+def test_a_bad_draws_file(base):
+    traj = _set(base, "draws_bad")
+    h = base[2][base[2]["kind"] == "drill"]["hole_id"].tolist()
+    d = traj.parent
+    _fails(base, traj, "bad0.csv: row 3: factor = '0.0' is not a finite number > 0", code=2,
+           extra=("--draws", str(_draws(d / "bad0.csv", [(0, "random", h[0], 1.2), (0, "random", h[1], 0.0)]))))
+    _fails(base, traj, "badneg.csv: row 2: factor = '-1.0'", code=2,
+           extra=("--draws", str(_draws(d / "badneg.csv", [(0, "slow", h[0], -1.0)]))))
+    _fails(base, traj, "badnan.csv: row 2: factor = 'inf'", code=2,
+           extra=("--draws", str(_draws(d / "badnan.csv", [(0, "slow", h[0], np.inf)]))))
+    _fails(base, traj, "badhole.csv: row 3: hole_id 'ZZ9' is not a hole of the plan", code=2,
+           extra=("--draws", str(_draws(d / "badhole.csv", [(0, "x", h[0], 1.0), (0, "x", "ZZ9", 1.0)]))))
+    _fails(base, traj, "baddup.csv: rows 2, 4: draw '0' lists hole", code=2,
+           extra=("--draws", str(_draws(d / "baddup.csv", [(0, "x", h[0], 1.0), (1, "y", h[0], 1.0),
+                                                             (0, "x", h[0], 2.0)]))))
+    _fails(base, traj, "badlabel.csv: draw '0' has 2 labels", code=2,
+           extra=("--draws", str(_draws(d / "badlabel.csv", [(0, "x", h[0], 1.0), (0, "y", h[1], 1.0)]))))
+    pd.DataFrame({"draw": [0], "hole_id": [h[0]], "factor": [1.0]}).to_csv(d / "badcol.csv", index=False)
+    _fails(base, traj, "badcol.csv: missing column(s) ['label']", code=2, extra=("--draws", str(d / "badcol.csv")))
+    _fails(base, traj, "nosuch.csv: no such draws file", code=2, extra=("--draws", str(d / "nosuch.csv")))

@@ -166,8 +166,11 @@ def _row_at(t: np.ndarray, when: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return i, np.abs(t[i] - when) <= TIME_TOL
 
 
-def agree(acts: Actions, rows: dict[str, BoomRows], trajectory: Path) -> None:
-    """The actions tile each boom's rows as the module docstring says; else an :class:`InputError`."""
+def agree(acts: Actions, rows: dict[str, BoomRows], trajectory: Path, uncollared: frozenset = frozenset()) -> None:
+    """The actions tile each boom's rows as the module docstring says; else an :class:`InputError`.
+
+    ``uncollared``: holes (a realised round's interrupted ones) whose drill action may have no collar
+    row: the hole was stopped before collaring ended, and the boom stands still through the action."""
     for b, name in enumerate(acts.booms):
         r, k = rows[name], np.arange(acts.first[b], acts.first[b + 1])
         where = f"{acts.path}: boom {name!r}"
@@ -179,16 +182,23 @@ def agree(acts: Actions, rows: dict[str, BoomRows], trajectory: Path) -> None:
                 raise InputError(f"{where}, row {acts.line[k[i]]}: {what} = {when[i]!r} is not the time of any of its "
                                  f"rows in {trajectory}")
         _moves(acts, k[acts.kind[k] == "move"], r, where, trajectory)
-        _drills(acts, k[acts.kind[k] == "drill"], r, where, trajectory)
+        _drills(acts, k[acts.kind[k] == "drill"], r, where, trajectory, uncollared)
         _pauses(acts, k, r, where, trajectory)
 
 
-def _drills(acts: Actions, k: np.ndarray, r: BoomRows, where: str, trajectory: Path) -> None:
+def _drills(acts: Actions, k: np.ndarray, r: BoomRows, where: str, trajectory: Path,
+            uncollared: frozenset = frozenset()) -> None:
     collars = np.flatnonzero(r.event == "collar")
     at = dict(zip(r.hole[collars], collars, strict=False))
     for i in k:  # drill actions: one per hole the boom drills
         h = acts.hole[i]
         c = at.get(h)
+        if c is None and h in uncollared:  # stopped before its collar row: the boom stands still throughout
+            inside = (r.t >= acts.t_start[i] - TIME_TOL) & (r.t <= acts.t_end[i] + TIME_TOL)
+            if inside.any() and np.abs(r.q[inside] - r.q[np.flatnonzero(inside)[0]]).max() > HOLD_TOL:
+                raise InputError(f"{where}, row {acts.line[i]}: drill of interrupted hole {h}, never collared in "
+                                 f"{trajectory}: the boom moves during it ({acts.t_start[i]!r}..{acts.t_end[i]!r})")
+            continue
         if c is None:
             raise InputError(f"{where}, row {acts.line[i]}: a drill of hole {h}, which the boom never collars in "
                              f"{trajectory}")

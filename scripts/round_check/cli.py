@@ -15,23 +15,43 @@ from . import rules
 from .actions import agree, read_actions, read_interlocks
 from .distance import SURFACES
 from .errors import InputError
-from .execute import draws, graph
+from .execute import draws, graph, read_draws
 from .executed import check as check_executed
 from .files import read_plan, read_round_table, read_summary, read_trajectory
+from .realised import follow
 from .settings import CONF_DIR, settings
 from .sweep import Sweep
 
 USAGE = """python scripts/check_round.py <stem>_trajectory.csv [hydra overrides, as the stage's: rig=twin ...]
         [--round F] [--summary F] [--plan F] [--spacing-m 0.005] [--collar-tol-mm 0.1] [--angle-tol-deg A]
-        [--levels 4] [--trajectory-only] [--actions F] [--interlocks F] [--execute N] [--seed S]"""
+        [--levels 4] [--trajectory-only] [--actions F] [--interlocks F] [--execute N] [--seed S] [--draws F]
+        [--realised]"""
 
 
-def _siblings(trajectory: Path, round_csv, summary, plan):
-    stem = trajectory.name[: -len("_trajectory.csv")] if trajectory.name.endswith("_trajectory.csv") else None
-    if stem is None and (round_csv is None or summary is None):
-        raise InputError(f"{trajectory}: not named <stem>_trajectory.csv: give --round and --summary")
-    round_csv = Path(round_csv) if round_csv else trajectory.with_name(f"{stem}_round.csv")
-    summary = Path(summary) if summary else trajectory.with_name(f"{stem}_round.json")
+# a set's file names after its stem: the planned set, and the realised one the executor writes
+NAMES = {False: {"trajectory": "_trajectory.csv", "round": "_round.csv", "summary": "_round.json",
+                 "actions": "_actions.csv", "interlocks": "_interlocks.csv"},
+         True: {"trajectory": "_executed_trajectory.csv", "round": "_executed_round.csv", "summary": "_executed.json",
+                "actions": "_executed_actions.csv", "interlocks": "_executed_interlocks.csv"}}
+
+
+def _sibling(trajectory: Path, realised: bool, which: str) -> Path | None:
+    """``<stem><suffix>`` beside ``<stem>_trajectory.csv`` (realised: ``<stem>_executed_trajectory.csv``)."""
+    own = NAMES[realised]["trajectory"]
+    if not trajectory.name.endswith(own):
+        return None
+    return trajectory.with_name(trajectory.name[: -len(own)] + NAMES[realised][which])
+
+
+def _siblings(trajectory: Path, round_csv, summary, plan, realised: bool = False):
+    if _sibling(trajectory, realised, "round") is None and (round_csv is None or summary is None):
+        raise InputError(f"{trajectory}: not named <stem>{NAMES[realised]['trajectory']}: give --round and --summary")
+    round_csv = Path(round_csv) if round_csv else _sibling(trajectory, realised, "round")
+    summary = Path(summary) if summary else _sibling(trajectory, realised, "summary")
+    real = _sibling(trajectory, True, "summary")
+    if not realised and not summary.exists() and real is not None and real.exists():
+        raise InputError(f"{trajectory}: a realised set ({real.name} beside it, no {summary.name}): check it with "
+                         "--realised")
     return round_csv, summary, plan
 
 
@@ -120,11 +140,14 @@ def _messages(sw: Sweep, res, st, ctx) -> tuple[list[str], list[str]]:
 def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spacing_m: float = 0.005,
           collar_tol_mm: float = 0.1, angle_tol_deg: float | None = None, levels: int = 4,
           trajectory_only: bool = False, actions=None, interlocks=None, execute: int | None = None,
-          seed: int = 0) -> dict:
+          seed: int = 0, realised: bool = False, draws_file=None) -> dict:
     """Check one round's files; returns the report (raises :class:`InputError` on input it cannot judge).
 
     ``trajectory_only``: the motion alone (clearances, limits, speeds, park, the planner's flags), for a
-    trajectory file without its round table, JSON and plan; no hole and no makespan is checked."""
+    trajectory file without its round table, JSON and plan; no hole and no makespan is checked.
+    ``realised``: an executed round's set (``<stem>_executed_trajectory.csv`` and its siblings,
+    :mod:`round_check.realised`). ``draws_file``: a planned round executed under exactly that file's
+    draws (and the nominal one; with ``execute``, the checker's own too)."""
     for name, v in (("--spacing-m", spacing_m), ("--collar-tol-mm", collar_tol_mm)) + (
             (("--angle-tol-deg", angle_tol_deg),) if angle_tol_deg is not None else ()):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -133,8 +156,13 @@ def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spa
         raise InputError(f"--levels {levels!r}: must be an integer in 0..10")
     if execute is not None and not (isinstance(execute, int) and execute >= 0):
         raise InputError(f"--execute {execute!r}: must be a whole number of draws >= 0")
-    if trajectory_only and (execute is not None or actions or interlocks):
-        raise InputError("--trajectory-only checks the motion alone: no --actions, --interlocks or --execute")
+    if realised and (execute is not None or draws_file):
+        # a realised set ran once, under the rock's durations: it is judged at its own times
+        raise InputError(f"{'--execute' if execute is not None else '--draws'} with --realised: drawn durations are "
+                         "for a planned round's actions; a realised set is checked at the times it was executed "
+                         "(drop one of the two)")
+    if trajectory_only and (execute is not None or actions or interlocks or draws_file):
+        raise InputError("--trajectory-only checks the motion alone: no --actions, --interlocks, --execute or --draws")
     trajectory = Path(trajectory)
     if not trajectory.is_file():
         raise InputError(f"{trajectory}: no such trajectory file")
@@ -142,13 +170,18 @@ def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spa
     if trajectory_only:
         return _motion(st, trajectory, spacing_m, levels, None, {"checked": "trajectory only: no hole, round "
                                                                             "table or makespan check"})
-    round_csv, summary_path, plan = _siblings(trajectory, round_csv, summary, plan)
+    round_csv, summary_path, plan = _siblings(trajectory, round_csv, summary, plan, realised)
     doc = read_summary(summary_path)
     if doc.get("rig") not in (None, st.rig):
         raise InputError(f"{summary_path}: the round was planned for rig {doc['rig']!r}, the settings compose rig "
                          f"{st.rig!r}: pass rig={doc['rig']} (and the stage's other overrides)")
+    if realised and doc.get("realised") is not True:
+        raise InputError(f"{summary_path}: no \"realised\": true: not a realised set (a planned one is checked "
+                         "without --realised)")
+    if not realised and doc.get("realised") is True:
+        raise InputError(f"{summary_path}: \"realised\": true: an executed round's set: check it with --realised")
     rows = read_trajectory(trajectory, {b.name: b.model.joint_names for b in st.booms})
-    table = read_round_table(round_csv)
+    table = read_round_table(round_csv, realised)
     plan_path = _plan_path(doc, summary_path, plan)
     holes_plan = read_plan(plan_path)
     depth = max((b.model.preview_depth for b in st.booms), default=0.0) or 1.0
@@ -156,45 +189,68 @@ def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spa
     # the matching angle: the direction error that moves the preview point (paper 000 eq. 3) by the collar tolerance
     angle_tol = math.radians(angle_tol_deg) if angle_tol_deg is not None else collar_tol / depth
 
-    execution = _read_execution(st, trajectory, rows, actions, interlocks, execute)  # input errors before any sweep
+    stopped = frozenset(table["hole_id"][table["status"] == "interrupted"])
+    # input errors before any sweep
+    execution = _read_execution(st, trajectory, rows, actions, interlocks, execute or draws_file, realised)
+    file_draws = None
+    if draws_file:
+        if not isinstance(execution, tuple):
+            raise InputError(f"{execution['why']}: --draws executes the round's actions: give --actions")
+        acts = execution[0]
+        file_draws = read_draws(Path(draws_file), holes_plan.ids, list(acts.hole[acts.kind == "drill"]))
     given = table[table["status"] == "ok"]["boom"].value_counts().to_dict()
     report = _motion(st, trajectory, spacing_m, levels, given, {}, rows)
-    msgs, hole_stats = rules.holes(st, rows, table, holes_plan, collar_tol, angle_tol)
+    msgs, hole_stats = rules.holes(st, rows, table, holes_plan, collar_tol, angle_tol, realised)
     for b in st.booms:
         report["booms"][b.name].update(hole_stats.get(b.name, {}))
     mk, _ = rules.makespan(rows, doc, summary_path)
     report["violations"] = msgs + mk + report["violations"]
-    report["execution"] = (_execution(st, rows, holes_plan, *execution, execute, seed, spacing_m, levels, report)
-                           if isinstance(execution, tuple) else execution)
+    if not isinstance(execution, tuple):
+        report["execution"] = execution
+    elif realised:
+        follow_msgs, report["execution"] = follow(*execution, rows, trajectory, stopped)
+        report["violations"] += follow_msgs
+    else:
+        report["execution"] = _execution(st, rows, holes_plan, *execution, execute, seed, spacing_m, levels, report,
+                                         file_draws)
+    if realised:
+        report["realised"] = {"factor": {k: hole_stats["_factors"][k] for k in ("min", "max")},
+                              "factor_per_hole": hole_stats["_factors"]["per_hole"],
+                              "interrupted": hole_stats["_holes"].pop("interrupted")}
     report.update({"round": str(round_csv), "summary": str(summary_path), "plan": str(plan_path),
                    "collar_tol_mm": collar_tol_mm, "angle_tol_deg": math.degrees(angle_tol),
                    "json_makespan_s": float(doc["makespan_s"]), "holes": hole_stats["_holes"]})
     return report
 
 
-def _read_execution(st, trajectory: Path, rows, actions, interlocks, execute):
-    """(actions, interlocks) read and held against the trajectory, or a note why none is checked."""
-    stem = trajectory.name[: -len("_trajectory.csv")] if trajectory.name.endswith("_trajectory.csv") else None
-    a_path = Path(actions) if actions else (trajectory.with_name(f"{stem}_actions.csv") if stem else None)
+def _read_execution(st, trajectory: Path, rows, actions, interlocks, execute, realised: bool = False):
+    """(actions, interlocks) read (and, for a planned round, held against the trajectory), or a note why
+    none is checked. A realised round's disagreements are its violations (:func:`follow`), not input errors."""
+    a_path = Path(actions) if actions else _sibling(trajectory, realised, "actions")
     if not actions and (a_path is None or not a_path.exists()):
         if execute is not None or interlocks:
             raise InputError(f"{a_path or trajectory}: no actions file to execute: give --actions")
         return {"checked": False, "why": f"no actions file ({a_path or 'give --actions'})"}
-    i_path = Path(interlocks) if interlocks else (trajectory.with_name(f"{stem}_interlocks.csv") if stem else None)
+    i_path = Path(interlocks) if interlocks else _sibling(trajectory, realised, "interlocks")
     if i_path is None:
-        raise InputError(f"{trajectory}: not named <stem>_trajectory.csv: give --interlocks")
+        raise InputError(f"{trajectory}: not named <stem>{NAMES[realised]['trajectory']}: give --interlocks")
     acts = read_actions(a_path, [b.name for b in st.booms])
-    agree(acts, rows, trajectory)
+    if not realised:
+        agree(acts, rows, trajectory)
     return acts, read_interlocks(i_path, acts)
 
 
-def _execution(st, rows, plan, acts, locks, execute, seed, spacing_m, levels, report) -> dict:
+def _execution(st, rows, plan, acts, locks, execute, seed, spacing_m, levels, report, file_draws=None) -> dict:
     L = np.linalg.norm(plan.toe - plan.collar, axis=1)
     spec = dict(zip(plan.ids, st.drill_times(L).sum(1), strict=True))
     spec = {h: float(v) for h, v in spec.items() if np.isfinite(v)}
     drill = acts.kind == "drill"
     dr = draws(list(acts.hole[drill]), acts.boom[drill], acts.booms, execute or 0, seed, execute is not None)
+    if file_draws is not None:
+        dr = dr + file_draws[0]
     out = check_executed(st, rows, acts, locks, graph(acts, locks), dr, spec, spacing_m, levels)
+    if file_draws is not None:
+        out["draws_file"] = file_draws[1]
     report["violations"] += out.pop("messages")
     report["not_certified"] += out.pop("unclear")
     return {"checked": True, "seed": seed, **out}
@@ -259,6 +315,11 @@ def main(argv=None) -> int:
     ap.add_argument("--execute", type=int, default=None, metavar="N",
                     help="N random draws (0.7-1.5x drilling), each hole alone at 3x, each boom slow")
     ap.add_argument("--seed", type=int, default=0, help="seed of the random draws")
+    ap.add_argument("--draws", dest="draws_file", metavar="F",
+                    help="a draws file (draw, label, hole_id, factor): execute exactly its draws (planned sets)")
+    ap.add_argument("--realised", action="store_true",
+                    help="a realised set (<stem>_executed_trajectory.csv ...): drills at their own factor, the "
+                         "actions' realised times against the rows and the interlocks")
     args = ap.parse_intermixed_args(argv)
     bad = [o for o in args.overrides if "=" not in o]
     if bad:
@@ -267,7 +328,7 @@ def main(argv=None) -> int:
     try:
         out = check(args.trajectory, args.overrides, args.round_csv, args.summary, args.plan, args.spacing_m,
                     args.collar_tol_mm, args.angle_tol_deg, args.levels, args.trajectory_only, args.actions,
-                    args.interlocks, args.execute, args.seed)
+                    args.interlocks, args.execute, args.seed, args.realised, args.draws_file)
     except InputError as e:
         print(f"check_round: {e}", file=sys.stderr)
         return 2

@@ -10,15 +10,20 @@ others run at 0.7x.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from .actions import Actions, Interlocks
+from .errors import InputError
+from .files import _require, _table
 
 RANDOM = (0.7, 1.5)
 STALL = 3.0
 SLOW, QUICK = 1.5, 0.7
+DRAW_COLUMNS = ["draw", "label", "hole_id", "factor"]
 
 
 @dataclass
@@ -79,6 +84,15 @@ class Draws:
     labels: list[str]
     factor: np.ndarray  # (draws, holes): drilling time over its spec time
     holes: list[str]
+    kinds: list[str] = field(default_factory=list)  # a draws file's label kind per draw, "" for the checker's own
+
+    def __post_init__(self):
+        self.kinds = self.kinds or [""] * len(self.labels)
+
+    def __add__(self, other: Draws) -> Draws:
+        assert self.holes == other.holes
+        return Draws(self.labels + other.labels, np.concatenate([self.factor, other.factor]), self.holes,
+                     self.kinds + other.kinds)
 
 
 def draws(holes: list[str], boom_of: np.ndarray, booms: list[str], n: int, seed: int, fixed: bool) -> Draws:
@@ -98,3 +112,64 @@ def draws(holes: list[str], boom_of: np.ndarray, booms: list[str], n: int, seed:
         parts.append(slow)
         labels += [f"boom {b} at {SLOW:g}x, the others at {QUICK:g}x" for b in booms]
     return Draws(labels, np.concatenate(parts), list(holes))
+
+
+def label_kind(label: str) -> str:
+    """A draws file label's kind, its first word (``stall H12`` -> ``stall``; ``random`` -> ``random``)."""
+    words = label.split()
+    return words[0] if words else "(no label)"
+
+
+def read_draws(path: Path, plan_ids: list[str], holes: list[str]) -> tuple[Draws, dict]:
+    """A draws file (``draw, label, hole_id, factor``; long format, one row per draw and hole, a hole not
+    listed for a draw at 1x) as :class:`Draws` over ``holes`` (the round's drilled holes), in the order
+    draws first appear. A listed plan hole the round does not drill is counted and has no effect.
+    Refused (:class:`InputError`, naming the file and the row): a missing column or cell, a hole not
+    in the plan, a factor not a finite number > 0, a (draw, hole_id) listed twice, one draw under two
+    labels, no rows."""
+    df = _table(Path(path), "draws file")
+    _require(df, DRAW_COLUMNS, path)
+    if df.empty:
+        raise InputError(f"{path}: no draws (no rows)")
+    draw, label, hole = (df[c].str.strip() for c in ("draw", "label", "hole_id"))
+    empty = (draw == "").to_numpy()
+    if empty.any():
+        i = int(np.flatnonzero(empty)[0])
+        raise InputError(f"{path}: row {i + 2}: no draw named (the `draw` cell is empty)")
+    unknown = ~hole.isin(plan_ids).to_numpy()
+    if unknown.any():
+        i = int(np.flatnonzero(unknown)[0])
+        raise InputError(f"{path}: row {i + 2}: hole_id {hole.iloc[i]!r} is not a hole of the plan "
+                         f"({int(unknown.sum())} such row(s))")
+    num = pd.to_numeric(df["factor"].str.strip(), errors="coerce").to_numpy(float)
+    bad = ~(np.isfinite(num) & (num > 0))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(f"{path}: row {i + 2}: factor = {df['factor'].iloc[i]!r} is not a finite number > 0 (a "
+                         f"drilling duration over its spec time; {int(bad.sum())} such row(s))")
+    twice = pd.DataFrame({"d": draw, "h": hole}).duplicated(keep=False).to_numpy()
+    if twice.any():
+        rows = np.flatnonzero(twice & (draw == draw.iloc[int(np.flatnonzero(twice)[0])]).to_numpy()
+                              & (hole == hole.iloc[int(np.flatnonzero(twice)[0])]).to_numpy()) + 2
+        raise InputError(f"{path}: rows {', '.join(map(str, rows))}: draw {draw.iloc[rows[0] - 2]!r} lists hole "
+                         f"{hole.iloc[rows[0] - 2]!r} more than once")
+    names = list(dict.fromkeys(draw))  # draws in the order they first appear
+    first = pd.DataFrame({"d": draw, "l": label}).drop_duplicates()
+    split = first["d"].duplicated(keep=False).to_numpy()
+    if split.any():
+        d = first["d"].iloc[int(np.flatnonzero(split)[0])]
+        rows = np.flatnonzero((draw == d).to_numpy())
+        lab = {label.iloc[i] for i in rows}
+        raise InputError(f"{path}: draw {d!r} has {len(lab)} labels {sorted(lab)} (rows "
+                         f"{', '.join(str(i + 2) for i in rows[:6])}): one label per draw")
+    labels = dict(zip(first["d"], first["l"], strict=True))
+    col = {h: j for j, h in enumerate(holes)}
+    factor = np.ones((len(names), len(holes)))
+    di = draw.map({d: i for i, d in enumerate(names)}).to_numpy(np.int64)
+    hj = hole.map(col).to_numpy(float)  # NaN: a plan hole this round does not drill
+    used = np.isfinite(hj)
+    factor[di[used], hj[used].astype(np.int64)] = num[used]
+    out = Draws([f"file draw {d} ({labels[d]})" for d in names], factor, list(holes),
+                [label_kind(labels[d]) for d in names])
+    return out, {"path": str(path), "draws": len(names), "rows": int(len(df)),
+                 "rows_of_holes_not_drilled": int((~used).sum())}

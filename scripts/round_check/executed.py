@@ -66,7 +66,8 @@ def check(st: Settings, rows: dict[str, BoomRows], acts: Actions, locks: Interlo
     out = {"actions": str(acts.path), "interlocks": str(locks.path), "draws": len(dr.labels),
            "draws_by_kind": {"nominal": 1, "random": sum(lb.startswith("random") for lb in dr.labels),
                              "hole_at_3x": sum(lb.startswith("hole") for lb in dr.labels),
-                             "boom_slow": sum(lb.startswith("boom") for lb in dr.labels)},
+                             "boom_slow": sum(lb.startswith("boom") for lb in dr.labels),
+                             "file": sum(1 for k in dr.kinds if k)},
            "actions_per_boom": {b: int(n) for b, n in zip(acts.booms, np.diff(acts.first), strict=True)},
            "interlock_rows": int(len(locks.after)),
            "self_and_tunnel": "unchanged by timing (each action's motion is fixed): checked once on the trajectory "
@@ -93,6 +94,9 @@ def check(st: Settings, rows: dict[str, BoomRows], acts: Actions, locks: Interlo
     pair_msgs, unclear, stats = _boom_boom(st, rows, acts, dr, start, end, spacing_m, levels)
     violations += pair_msgs
     share = standing / np.where(span > 0, span, 1.0)
+    bad_draws = stats.pop("_violating")
+    if any(dr.kinds):
+        out["draws_file_by_kind"] = _by_kind(dr, span, bad_draws)
     out.update({
         "deadlocks": 0, **stats,
         "makespan_s": {"trajectory": max(float(r.t[-1]) for r in rows.values()), "nominal": float(span[0]),
@@ -107,6 +111,19 @@ def check(st: Settings, rows: dict[str, BoomRows], acts: Actions, locks: Interlo
     })
     out["time_s"]["episodes_and_dense"] = out["time_s"]["total"] - t_exec
     return {**out, "messages": violations, "unclear": unclear}
+
+
+def _by_kind(dr: Draws, span: np.ndarray, bad: set[int]) -> dict:
+    """A draws file's draws summed up per label kind: their number, makespans, violating draws."""
+    out = {}
+    for kind in dict.fromkeys(k for k in dr.kinds if k):
+        d = np.array([i for i, k in enumerate(dr.kinds) if k == kind])
+        worst = int(d[span[d].argmax()])
+        out[kind] = {"draws": int(len(d)), "violating_draws": sum(1 for i in d if int(i) in bad),
+                     "makespan_s": {"p50": float(np.percentile(span[d], 50)), "p95": float(np.percentile(span[d], 95)),
+                                    "max": float(span[d].max()), "max_draw": dr.labels[worst],
+                                    "over_nominal_max": float(span[d].max() / span[0]) if span[0] > 0 else None}}
+    return out
 
 
 def _nominal(acts: Actions, rows: dict[str, BoomRows], s: np.ndarray, e: np.ndarray) -> list[str]:
@@ -200,5 +217,6 @@ def _boom_boom(st, rows, acts, dr, start, end, spacing_m, levels):
              "violating_draws": len(confirmed_draws),
              "min_executed_candidate_distance_m": None if not np.isfinite(least) else float(least),
              "min_executed_candidate_draw": least_at,
-             "time_floors_s": t_floor, "time_dense_s": time.perf_counter() - t0 - t_floor}
+             "time_floors_s": t_floor, "time_dense_s": time.perf_counter() - t0 - t_floor,
+             "_violating": confirmed_draws}
     return msgs, unclear, stats

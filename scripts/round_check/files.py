@@ -20,6 +20,8 @@ HOLE_EVENTS = ("collar", "drill", "retract")
 ROUND_COLUMNS = ["hole_id", "boom", "t_start", "t_end", "status"]
 PLAN_COLUMNS = ["hole_id", "collar_x", "collar_y", "collar_z", "toe_x", "toe_y", "toe_z"]
 STATUSES = {"ok", "unreachable", "invalid"}
+INTERRUPTED = "interrupted"  # a realised round's hole its boom stopped (spec section 8): realised sets only
+TIMED = ("ok", INTERRUPTED)  # statuses whose rows carry the drilling's times
 
 
 @dataclass
@@ -48,14 +50,17 @@ def _require(df: pd.DataFrame, cols, path: Path) -> None:
         raise InputError(f"{path}: missing column(s) {missing}; found {list(df.columns)}")
 
 
-def _numbers(df: pd.DataFrame, cols, path: Path, who: pd.Series | None = None) -> np.ndarray:
-    """``(n, len(cols))`` floats; a missing, unreadable or non-finite cell is an error naming its row."""
+def _numbers(df: pd.DataFrame, cols, path: Path, who: pd.Series | None = None,
+             lines: np.ndarray | None = None) -> np.ndarray:
+    """``(n, len(cols))`` floats; a missing, unreadable or non-finite cell is an error naming its row
+    (``lines``: the file line of each row of a filtered ``df``; else row i is line i + 2)."""
     vals = np.stack([pd.to_numeric(df[c].str.strip(), errors="coerce").to_numpy(float) for c in cols], -1)
     bad = ~np.isfinite(vals)
     if bad.any():
         i, j = np.argwhere(bad)[0]
         boom = f"boom {who.iloc[i]!r}, " if who is not None else ""
-        raise InputError(f"{path}: {boom}row {i + 2}: {cols[j]} = {df[cols[j]].iloc[i]!r} is not a finite number"
+        line = int(lines[i]) if lines is not None else i + 2
+        raise InputError(f"{path}: {boom}row {line}: {cols[j]} = {df[cols[j]].iloc[i]!r} is not a finite number"
                          f" ({int(bad.any(1).sum())} such row(s))")
     return vals
 
@@ -102,19 +107,22 @@ def read_trajectory(path: Path, booms: dict[str, list[str]]) -> dict[str, BoomRo
     return out
 
 
-def read_round_table(path: Path) -> pd.DataFrame:
+def read_round_table(path: Path, realised: bool = False) -> pd.DataFrame:
+    """The round table; ``realised``: an executed round's, where a hole may also be ``interrupted``."""
     df = _table(path, "round table")
     _require(df, ROUND_COLUMNS, path)
     df = df.assign(hole_id=df["hole_id"].str.strip(), boom=df["boom"].str.strip(), status=df["status"].str.strip())
-    bad = ~df["status"].isin(sorted(STATUSES))
+    allowed = sorted(STATUSES | ({INTERRUPTED} if realised else set()))
+    bad = ~df["status"].isin(allowed)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        raise InputError(f"{path}: row {i + 2}: status {df['status'].iloc[i]!r} is not one of {sorted(STATUSES)}")
+        hint = " (an executed round's status: check it with --realised)" if df["status"].iloc[i] == INTERRUPTED else ""
+        raise InputError(f"{path}: row {i + 2}: status {df['status'].iloc[i]!r} is not one of {allowed}{hint}")
     dup = df["hole_id"].duplicated(keep=False)
     if dup.any():
         raise InputError(f"{path}: hole(s) {sorted(set(df['hole_id'][dup]))} listed more than once")
-    ok = df["status"] == "ok"
-    times = _numbers(df[ok], ["t_start", "t_end"], path)
+    ok = df["status"].isin(TIMED).to_numpy()
+    times = _numbers(df[ok], ["t_start", "t_end"], path, lines=np.flatnonzero(ok) + 2)
     df["t_start_s"], df["t_end_s"] = np.nan, np.nan
     df.loc[ok, "t_start_s"], df.loc[ok, "t_end_s"] = times[:, 0], times[:, 1]
     return df

@@ -109,12 +109,18 @@ def unclear_moves(boom: RigBoom, r: BoomRows, ctx: Context) -> list[str]:
 
 
 def holes(st: Settings, rows: dict[str, BoomRows], table: pd.DataFrame, plan: Plan, collar_tol_m: float,
-          angle_tol_rad: float) -> tuple[list[str], dict]:
+          angle_tol_rad: float, realised: bool = False) -> tuple[list[str], dict]:
     """Every plan hole drilled once (or reported not drilled), at joints that put the drill end on its
-    collar along its direction, held still for exactly the spec time."""
+    collar along its direction, held still for exactly the spec time.
+
+    ``realised`` (an executed round, spec section 8): a drill lasts what the rock took, so its collaring,
+    drilling and retraction are the spec parts times one common factor f > 0 (each part within
+    :data:`TIME_TOL` of f times its spec part, f = the drill's duration over its spec duration); a hole
+    the table reports ``interrupted`` is drilled at most once (any factor), by its boom at its times."""
     msgs, stats = [], {}
     where = {h: i for i, h in enumerate(plan.ids)}
-    drilled: dict[str, list[str]] = {}
+    drilled: dict[str, list[tuple[str, float]]] = {}
+    factors: dict[str, float] = {}
     for boom in st.booms:
         r = rows[boom.name]
         ks = np.flatnonzero(r.event == "collar")
@@ -137,8 +143,8 @@ def holes(st: Settings, rows: dict[str, BoomRows], table: pd.DataFrame, plan: Pl
             msgs.append(f"boom {name}, t={r.t[k]:.3f} s, hole {r.hole[k]}: a {r.event[k]} row (row {r.line[k]}) "
                         "without its collar row")
         ids = r.hole[ks]
-        for h in ids:
-            drilled.setdefault(h, []).append(name)
+        for h, k in zip(ids, ks, strict=True):
+            drilled.setdefault(h, []).append((name, float(r.t[k])))
         # held still from the collar row to the end of retraction
         span = np.stack([np.abs(r.q[ks + i] - r.q[ks]).max(1) for i in (1, 2, 3)], 1).max(1) if len(ks) else np.zeros(0)
         for k, moved in zip(ks[span > HOLD_TOL], span[span > HOLD_TOL], strict=True):
@@ -152,12 +158,24 @@ def holes(st: Settings, rows: dict[str, BoomRows], table: pd.DataFrame, plan: Pl
             L[known] = np.linalg.norm(plan.toe[pi[known]] - plan.collar[pi[known]], axis=1)
             spec = st.drill_times(L)
             parts = np.stack([r.t[ks + 1] - r.t[ks], r.t[ks + 2] - r.t[ks + 1], r.t[ks + 3] - r.t[ks + 2]], 1)
-            off = np.abs(parts - spec).max(1) > TIME_TOL
+            # planned: the spec parts themselves; realised: the spec parts times the drill's own factor
+            f = parts.sum(1) / spec.sum(1) if realised else np.ones(len(ks))
+            off = np.abs(parts - f[:, None] * spec).max(1) > TIME_TOL
             for i in np.flatnonzero(off & np.isfinite(L)):
                 k = ks[i]
-                msgs.append(f"boom {name}, t={r.t[k]:.3f} s, hole {r.hole[k]}: collaring, drilling, retraction last "
-                            f"{parts[i, 0]:.6f} + {parts[i, 1]:.6f} + {parts[i, 2]:.6f} s; the spec time for its "
-                            f"{L[i]:.4f} m is {spec[i, 0]:.6f} + {spec[i, 1]:.6f} + {spec[i, 2]:.6f} s")
+                head = (f"boom {name}, t={r.t[k]:.3f} s, hole {r.hole[k]}: collaring, drilling, retraction last "
+                        f"{parts[i, 0]:.6f} + {parts[i, 1]:.6f} + {parts[i, 2]:.6f} s")
+                if realised:
+                    with np.errstate(divide="ignore", invalid="ignore"):
+                        own = parts[i] / spec[i]
+                    msgs.append(f"{head}: not the spec parts {spec[i, 0]:.6f} + {spec[i, 1]:.6f} + {spec[i, 2]:.6f} "
+                                f"s of its {L[i]:.4f} m times one factor (the whole drill {f[i]:.6f}x, the parts "
+                                f"{own[0]:.6f}x, {own[1]:.6f}x, {own[2]:.6f}x)")
+                else:
+                    msgs.append(f"{head}; the spec time for its {L[i]:.4f} m is {spec[i, 0]:.6f} + {spec[i, 1]:.6f} "
+                                f"+ {spec[i, 2]:.6f} s")
+            for i in np.flatnonzero(np.isfinite(L)):
+                factors.setdefault(str(ids[i]), float(f[i]))
             # pose: drill end on the collar, feed along the hole
             H, z = boom.model.tool_pose(r.q[ks])
             H = H + boom.base
@@ -185,7 +203,8 @@ def holes(st: Settings, rows: dict[str, BoomRows], table: pd.DataFrame, plan: Pl
         # the round table's account of this boom's holes
         done = pd.DataFrame({"hole_id": ids, "k": ks}).merge(table, on="hole_id", how="left")
         k = done["k"].to_numpy()
-        listed = done["status"].notna().to_numpy() & (done["status"] == "ok").to_numpy()
+        timed = ("ok", "interrupted") if realised else ("ok",)  # an interrupted hole: drilled (partly) at its times
+        listed = done["status"].isin(timed).to_numpy()
         for h, s in zip(done["hole_id"][~listed], done["status"][~listed], strict=True):
             said = "lists no such hole" if pd.isna(s) else f"says {s}"
             msgs.append(f"boom {name}, hole {h}: drilled, but the round table {said}")
@@ -199,10 +218,15 @@ def holes(st: Settings, rows: dict[str, BoomRows], table: pd.DataFrame, plan: Pl
                 msgs.append(f"boom {name}, t={r.t[kx]:.3f} s, hole {row['hole_id']}: drilled {r.t[kx]:.6f}.."
                             f"{r.t[kx + 3]:.6f} s, the round table says boom {row['boom']} "
                             f"{row['t_start_s']:.6f}..{row['t_end_s']:.6f} s")
+    status = dict(zip(table["hole_id"], table["status"], strict=True))
     for h, by in drilled.items():
         if len(by) > 1:
-            msgs.append(f"hole {h}: drilled {len(by)} times (boom(s) {', '.join(by)})")
-    status = dict(zip(table["hole_id"], table["status"], strict=True))
+            each = ", ".join(f"boom {b} at t={t:.3f} s" for b, t in sorted(by, key=lambda x: x[1]))
+            if status.get(h) == "interrupted":
+                msgs.append(f"hole {h}: interrupted, yet drilled {len(by)} times ({each}); an interrupted hole is "
+                            "reported, drilled at most once and never again by any boom")
+            else:
+                msgs.append(f"hole {h}: drilled {len(by)} times ({each})")
     given = dict(zip(table["hole_id"], table["boom"], strict=True))
     for h in plan.ids:
         if h in drilled or not h:
@@ -214,8 +238,14 @@ def holes(st: Settings, rows: dict[str, BoomRows], table: pd.DataFrame, plan: Pl
     for h in table["hole_id"]:
         if h not in where:
             msgs.append(f"hole {h}: in the round table but not in the plan")
-    reported = sum(1 for h in plan.ids if status.get(h) in ("unreachable", "invalid"))
+    reported = sum(1 for h in plan.ids if status.get(h) in ("unreachable", "invalid", "interrupted"))
     stats["_holes"] = {"plan": len(plan.ids), "drilled": len(drilled), "reported_not_drilled": int(reported)}
+    if realised:
+        stopped = [h for h in plan.ids if status.get(h) == "interrupted"]
+        stats["_holes"]["interrupted"] = [{"hole_id": h, "boom": given[h], "drilled": h in drilled,
+                                           "factor": factors.get(h)} for h in stopped]
+        stats["_factors"] = {"min": min(factors.values(), default=None), "max": max(factors.values(), default=None),
+                             "per_hole": factors}
     return msgs, stats
 
 
