@@ -606,3 +606,20 @@ def test_a_bad_draws_file(base):
     pd.DataFrame({"draw": [0], "hole_id": [h[0]], "factor": [1.0]}).to_csv(d / "badcol.csv", index=False)
     _fails(base, traj, "badcol.csv: missing column(s) ['label']", code=2, extra=("--draws", str(d / "badcol.csv")))
     _fails(base, traj, "nosuch.csv: no such draws file", code=2, extra=("--draws", str(d / "nosuch.csv")))
+
+
+def test_a_draws_file_on_a_round_missing_an_interlock_counts_its_broken_draws(base):
+    """R's first move no longer waits for L's cut hole: the file's draws break d_boom, counted per kind."""
+    wait = _first_wait(base[2])
+
+    def delete(i):
+        return i[~((i["boom"] == "R") & (i["action"] == 0) & (i["after_boom"] == "L")
+                   & (i["after_action"] == wait["action"]))]
+
+    traj = _set(base, "draws_deleted", locks=delete)
+    f = _draws(traj.with_name("draws.csv"), [(7, f"stall {wait['hole_id']}", wait["hole_id"], 3.0),
+                                             (8, "slow", wait["hole_id"], 1.5)])
+    report, text = _fails(base, traj, f"executed draw 1 (file draw 7 (stall {wait['hole_id']}))", "< d_boom",
+                          extra=("--draws", str(f)))
+    kinds = report["execution"]["draws_file_by_kind"]
+    assert kinds["stall"]["violating_draws"] == 1 and kinds["slow"]["violating_draws"] == 1

@@ -6,5 +6,7 @@ Modules, one job each: :mod:`.errors` (input errors, exit 2), :mod:`.boom` (a bo
 kinematics, bodies, lever-arm bounds), :mod:`.distance` (segment-segment and horseshoe distances),
 :mod:`.settings` (the rig, tunnel, safety and motion from the composed config), :mod:`.files` (reading
 and validating the trajectory, round table, round JSON and plan), :mod:`.sweep` (certified clearances
-over time), :mod:`.rules` (row checks: limits, speeds, park, holes, makespan), :mod:`.cli` (the command).
+over time), :mod:`.rules` (row checks: limits, speeds, park, holes, makespan), :mod:`.actions`,
+:mod:`.execute`, :mod:`.episodes`, :mod:`.executed` (the executed round under drawn durations, and a
+draws file), :mod:`.realised` (a realised set at its own times), :mod:`.cli` (the command).
 """
