@@ -606,6 +606,8 @@ def test_a_bad_draws_file(base):
     pd.DataFrame({"draw": [0], "hole_id": [h[0]], "factor": [1.0]}).to_csv(d / "badcol.csv", index=False)
     _fails(base, traj, "badcol.csv: missing column(s) ['label']", code=2, extra=("--draws", str(d / "badcol.csv")))
     _fails(base, traj, "nosuch.csv: no such draws file", code=2, extra=("--draws", str(d / "nosuch.csv")))
+    _fails(base, base[0] / "small_trajectory.csv", "no actions file to execute", code=2,  # nothing to execute
+           extra=("--draws", str(d / "bad0.csv")))
 
 
 def test_a_draws_file_on_a_round_missing_an_interlock_counts_its_broken_draws(base):

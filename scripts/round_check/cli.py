@@ -190,12 +190,11 @@ def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spa
     angle_tol = math.radians(angle_tol_deg) if angle_tol_deg is not None else collar_tol / depth
 
     stopped = frozenset(table["hole_id"][table["status"] == "interrupted"])
-    # input errors before any sweep
-    execution = _read_execution(st, trajectory, rows, actions, interlocks, execute or draws_file, realised)
+    # input errors before any sweep; drawn durations (--execute, even 0, or --draws) need an actions file
+    wants = execute is not None or bool(draws_file)
+    execution = _read_execution(st, trajectory, rows, actions, interlocks, 0 if wants else None, realised)
     file_draws = None
     if draws_file:
-        if not isinstance(execution, tuple):
-            raise InputError(f"{execution['why']}: --draws executes the round's actions: give --actions")
         acts = execution[0]
         file_draws = read_draws(Path(draws_file), holes_plan.ids, list(acts.hole[acts.kind == "drill"]))
     given = table[table["status"] == "ok"]["boom"].value_counts().to_dict()
