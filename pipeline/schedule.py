@@ -171,6 +171,10 @@ def run(cfg: DictConfig) -> dict:
             writers["gantt"] = lambda p: save_figure(gantt, p)
             mlrun.log_figure(face, "round_face.png")
             mlrun.log_figure(gantt, "round_gantt.png")
+        if res.plan.book is not None:  # for a round handed on after an interruption (pipeline.execute)
+            from pipeline.round.move_file import save_book
+
+            writers["moves"] = lambda p: save_book(res.plan.book, p)
         if executed is not None:
             writers["actions"] = lambda p: write_csv(spreadsheet_safe(executed.actions), p)
             writers["interlocks"] = lambda p: write_csv(executed.interlocks, p)

@@ -36,7 +36,20 @@ CONF = "conf/"
 
 
 def code_deps(stage: dict) -> list[str]:
-    return [d for d in stage["deps"] if not d.startswith((DATA, CONF))]
+    """The stage's own code (its import closure); the checker it runs as a separate process is
+    ``scripts/`` (test_execute_depends_on_the_checker_it_runs)."""
+    return [d for d in stage["deps"] if not d.startswith((DATA, CONF, "scripts/"))]
+
+
+def test_execute_depends_on_the_checker_it_runs():
+    """pipeline.execute runs scripts/check_round.py (which imports nothing of pipeline): a change to the
+    checker must re-run the stage, so DVC hashes the script and its package."""
+    from pipeline.execute import CHECKER
+
+    for name, stage in STAGES.items():
+        if "python -m pipeline.execute" in stage["cmd"]:
+            assert CHECKER in stage["deps"] and "scripts/round_check" in stage["deps"], name
+    assert (g.ROOT / CHECKER).is_file() and (g.ROOT / "scripts/round_check/__init__.py").is_file()
 
 
 def closure_files(stage: dict) -> set[str]:

@@ -61,7 +61,7 @@ def test_redundancy_compares_chained_and_independent_sums(setup):
 
 def test_move_benchmark_rows_and_summary_agree(setup):
     _, rig, plan, solvers, reach, limits = setup
-    st = MoveBenchmarkSettings(pairs=6, planner_time_s=0.5, simplify_s=0.2, seed=1)
+    st = MoveBenchmarkSettings(pairs=6, planner_iterations=5000, simplify_steps=20, seed=1)
     table, summary = run_moves(rig, plan, reach, solvers, limits, st)
     assert len(table) == 2 * st.pairs and summary["all.pairs"] == len(table)
     assert set(table["kind"]) <= {*KINDS, "failed", "blocked"}

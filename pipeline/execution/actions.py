@@ -3,7 +3,8 @@
 Boom b with route ``h_0 .. h_{n-1}`` has actions ``0 .. 2n``: ``move`` park -> h_0, ``drill`` h_0,
 ``move`` h_0 -> h_1, ..., ``drill`` h_{n-1}, ``move`` h_{n-1} -> park. Planned times: a move is
 ``[move_start, arrive]``, a drill ``[arrive, arrive + drill_s]``; a pause (a later move start) is not
-an action. A boom with no hole has no action (it stays at park). Actions are numbered globally in
+an action. A boom with no hole has no action (it stays at park). A round handed on
+(``Timeline.start``) starts each boom's first move where the boom stands. Actions are numbered globally in
 boom-major order (``Actions.boom``, ``Actions.index`` give the file's ``boom, action``).
 
 Interlocks are edges ``(before, after)`` of global action numbers: ``after`` may start only once
@@ -94,22 +95,54 @@ def actions_of(inst: Instance, tl: Timeline) -> Actions:
             cols[k].append(v)
 
     for b, route in enumerate(tl.routes):
-        if not route:
+        first = tl.start_node(b)
+        if not route and first == H:
             continue
-        nodes = [H, *route, H]
+        nodes = [first, *route, H]
         i = 0
         for k in range(len(route) + 1):
             add(b, i, "move", -1, nodes[k], nodes[k + 1], float(tl.move_start[b][k]), float(tl.arrive[b][k]))
             i += 1
             if k < len(route):
                 h = route[k]
-                t = float(tl.arrive[b][k])
+                t = tl.drill_at(b, k)
                 add(b, i, "drill", h, h, h, t, t + float(drill[h]))
                 i += 1
     arr = {k: np.asarray(v, dtype=float if k.startswith("t_") else (object if k == "kind" else int))
            for k, v in cols.items()}
     arr["kind"] = arr["kind"].astype(str) if len(arr["kind"]) else np.zeros(0, dtype="<U5")
     return Actions(tuple(inst.booms), tuple(inst.hole_ids), **arr)
+
+
+def actions_from_table(df: pd.DataFrame, booms, hole_ids, source: str = "actions") -> Actions:
+    """An actions table read back (:func:`read_actions`) as :class:`Actions` over the plan's holes.
+    Booms in ``booms`` order; a move goes from where the boom's previous action left it (park before
+    the first) to the hole its next drill is at (park after the last). Raises :class:`InputError` for
+    a boom or hole the rig or plan does not have."""
+    booms, hole_ids = tuple(booms), tuple(hole_ids)
+    H, b_of, h_of = len(hole_ids), {b: k for k, b in enumerate(booms)}, {h: k for k, h in enumerate(hole_ids)}
+    for name, known, col in (("boom", b_of, "boom"), ("hole", h_of, "hole_id")):
+        bad = [v for v in df[col] if v and v not in known]
+        if bad:
+            raise InputError(f"{source}: {name} {bad[0]!r} is not in the {'rig' if col == 'boom' else 'plan'}")
+    order = np.lexsort((df["action"].to_numpy(int), [b_of[b] for b in df["boom"]]))
+    d = df.iloc[order].reset_index(drop=True)
+    boom = np.array([b_of[b] for b in d["boom"]], int)
+    kind = d["kind"].astype(str).to_numpy()
+    hole = np.array([h_of[h] if h else -1 for h in d["hole_id"]], int)
+    src, dst = np.full(len(d), H), np.full(len(d), H)
+    for b in np.unique(boom):  # a few booms
+        mine = np.flatnonzero(boom == b)
+        at = H
+        for i, k in enumerate(mine):  # where each action starts and ends (an action's own count)
+            if kind[k] == "drill":
+                src[k] = dst[k] = at = hole[k]
+            else:
+                nxt = mine[i + 1] if i + 1 < len(mine) else -1
+                src[k], dst[k] = at, hole[nxt] if nxt >= 0 and kind[nxt] == "drill" else H
+                at = dst[k]
+    return Actions(booms, hole_ids, boom, d["action"].to_numpy(int), kind, hole, src, dst,
+                   d["t_start"].to_numpy(float), d["t_end"].to_numpy(float))
 
 
 def actions_table(acts: Actions) -> pd.DataFrame:

@@ -98,11 +98,13 @@ def realised(inst: Instance, acts: Actions, ex: Execution, draw: int = 0) -> tup
     planned = inst.drill_s[holes]
     scale = (ex.end[draw, drills] - ex.start[draw, drills]) / np.where(planned > 0, planned, 1.0)
     phases[holes] = inst.phases[holes] * scale[:, None]
-    routes, ms, ar = [], [], []
+    routes, ms, ar, ds = [], [], [], []
     for b in range(inst.n_booms):
         mine = acts.boom == b
         moves = np.flatnonzero(mine & ~acts.is_drill)
         routes.append(acts.hole[mine & acts.is_drill].tolist())
         ms.append(ex.start[draw, moves] if len(moves) else np.zeros(1))
         ar.append(ex.end[draw, moves] if len(moves) else np.zeros(1))
-    return dataclasses.replace(inst, phases=phases), Timeline(routes, ms, ar, H)
+        ds.append(ex.start[draw, np.flatnonzero(mine & acts.is_drill)])
+    start = None if inst.start is None else inst.starts
+    return dataclasses.replace(inst, phases=phases), Timeline(routes, ms, ar, H, start=start, drill_start=ds)

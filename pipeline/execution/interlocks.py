@@ -102,7 +102,9 @@ def _state(acts: Actions, ex: Execution, seg: dict, b: int, t: float):
         return ("stand", -1, int(mine[0]))
     mv = int(moves[k])
     nxt = mv + 1 if mv + 1 <= mine[-1] else -1
-    if nxt >= 0 and acts.is_drill[nxt]:  # standing at a hole: its drill, then a pause before the next move
+    if nxt >= 0 and acts.is_drill[nxt]:  # at a hole: maybe standing (an interlock), its drill, then a pause
+        if t < ex.start[0, nxt] - 1e-9:
+            return ("stand", mv, nxt)
         if t < ex.end[0, nxt] - 1e-9:
             return ("in", nxt)
         return ("stand", nxt, nxt + 1 if nxt + 1 <= mine[-1] else -1)
@@ -192,6 +194,7 @@ def robust_round(inst: Instance, tl: Timeline, oracle, max_flips: int | None = N
 def _say(acts: Actions, s) -> str:
     if s[0] == "in":
         return acts.name(s[1])
-    where = "park" if s[1] < 0 or s[2] < 0 else f"between {acts.name(s[1])} and {acts.name(s[2])}"
+    where = ("where it starts" if s[1] < 0 else "at park, done") if s[1] < 0 or s[2] < 0 else (
+        f"between {acts.name(s[1])} and {acts.name(s[2])}")
     boom = acts.booms[acts.boom[s[1] if s[1] >= 0 else s[2]]]
     return f"boom {boom} standing {where}"

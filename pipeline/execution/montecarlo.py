@@ -3,10 +3,12 @@
 The draws (``conf/execution/default.yaml``), as factors of each hole's section-7 drilling time:
 
 - ``draws`` random ones, every hole's factor uniform in ``[low, high]`` independently (a seeded numpy
-  Generator: the same settings give the same draws);
+  Generator: the same settings give the same draws), and, with ``stall_p`` > 0, each hole of each
+  random draw stalls (its factor times ``stall_factor``) with that probability;
 - every drilled hole alone at ``stall_factor`` (a jammed rod), the others at 1;
 - one boom at ``slow_factor`` while the others run at ``quick_factor``, each boom in turn.
 
+``factors`` (hole id -> factor) fixes named holes' factors in every draw (a hole known to be hard).
 All are executed at once (:func:`pipeline.execution.executor.execute`, vectorised over draws). The
 summary gives the makespan's ratio to the nominal one (p50, p95, max) and the time the booms stood at
 interlocks as a share of the draw's makespan (p95, max), and the deadlocks (the graph is the same for
@@ -37,13 +39,33 @@ class ExecutionSettings:
     stall_factor: float = field(default=3.0, metadata=rule(gt=0))
     slow_factor: float = field(default=1.5, metadata=rule(gt=0))
     quick_factor: float = field(default=0.7, metadata=rule(gt=0))
+    stall_p: float = field(default=0.0, metadata=rule(ge=0, le=1))
+    factors: dict[str, float] = field(default_factory=dict)
 
 
 def parse_execution(node: Mapping, source: str = "execution") -> ExecutionSettings:
     s = parse(ExecutionSettings, node, source)
     if s.high < s.low:
         raise ConfigError(f"{source}.high = {s.high}: must be >= {source}.low = {s.low}")
+    for h, f in s.factors.items():
+        try:
+            ok = float(f) > 0 and np.isfinite(float(f))
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise ConfigError(f"{source}.factors.{h} = {f!r}: expected a finite factor > 0")
     return s
+
+
+def fixed_factors(acts: Actions, factors: Mapping[str, float], source: str = "execution.factors") -> np.ndarray:
+    """``(H,)`` the named holes' fixed factors (1 elsewhere); a name the plan lacks is a ConfigError."""
+    out = np.ones(len(acts.hole_ids))
+    index = {h: k for k, h in enumerate(acts.hole_ids)}
+    for h, f in factors.items():
+        if str(h) not in index:
+            raise ConfigError(f"{source}.{h}: no hole {h!r} in the plan")
+        out[index[str(h)]] = float(f)
+    return out
 
 
 @dataclass(frozen=True)
@@ -59,6 +81,8 @@ def draws(acts: Actions, settings: ExecutionSettings) -> Draws:
     H, B = len(acts.hole_ids), len(acts.booms)
     rng = np.random.default_rng(settings.seed)
     rand = rng.uniform(settings.low, settings.high, size=(settings.draws, H))
+    if settings.stall_p > 0:  # drawn after the factors: stall_p = 0 keeps the same draws
+        rand = np.where(rng.random((settings.draws, H)) < settings.stall_p, rand * settings.stall_factor, rand)
     drilled = np.unique(acts.hole[acts.is_drill])
     stall = np.ones((len(drilled), H))
     stall[np.arange(len(drilled)), drilled] = settings.stall_factor
@@ -68,7 +92,11 @@ def draws(acts: Actions, settings: ExecutionSettings) -> Draws:
     slow = np.where(owner[None, :] == np.array(booms)[:, None], settings.slow_factor, settings.quick_factor)
     labels = (["random"] * settings.draws + [f"stall {acts.hole_ids[h]}" for h in drilled]
               + [f"slow {acts.booms[b]}" for b in booms])
-    return Draws(np.concatenate([rand, stall, slow.reshape(-1, H)]), labels)
+    fixed = fixed_factors(acts, settings.factors)
+    named = fixed != 1.0
+    out = np.concatenate([rand, stall, slow.reshape(-1, H)])
+    out[:, named] = fixed[named]
+    return Draws(out, labels)
 
 
 def run(acts: Actions, interlocks: np.ndarray, drill_s: np.ndarray, d: Draws) -> Execution:

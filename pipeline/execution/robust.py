@@ -70,13 +70,17 @@ def robust_finish(settings: ExecutionSettings, say=None):
 
 def realised_makespans_figure(ex: Executed, title: str = ""):
     """Realised makespans of the draws against the nominal round: a histogram per kind of draw."""
+    return makespans_figure(ex.execution.makespan, ex.draws.labels, ex.summary["nominal_makespan_s"], title)
+
+
+def makespans_figure(span: np.ndarray, draw_labels: list[str], nominal: float, title: str = "", realised=None):
+    """Makespans of draws (labels ``random``, ``stall <hole>``, ``slow <boom>``) against the nominal
+    one; ``realised``: (makespan, label) of one executed round, marked."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(7.5, 4.2))
     ax = fig.add_subplot(1, 1, 1)
-    nominal = ex.summary["nominal_makespan_s"]
-    labels = np.array([lab.split(" ")[0] for lab in ex.draws.labels])
-    span = ex.execution.makespan
+    labels = np.array([lab.split(" ")[0] for lab in draw_labels])
     for kind, colour in (("random", "tab:blue"), ("stall", "tab:orange"), ("slow", "tab:red")):
         m = labels == kind
         if m.any():
@@ -84,6 +88,8 @@ def realised_makespans_figure(ex: Executed, title: str = ""):
                     label={"random": "each hole 0.7-1.5x", "stall": "one hole 3x", "slow": "one boom slow"}[kind]
                     + f" ({int(m.sum())})")
     ax.axvline(nominal, color="k", lw=1.2, label=f"nominal {nominal:.0f} s")
+    if realised is not None:
+        ax.axvline(realised[0], color="tab:green", lw=1.5, ls="--", label=f"{realised[1]} {realised[0]:.0f} s")
     ax.set_xlabel("realised makespan (s), executed by events with the interlocks")
     ax.set_ylabel("draws")
     ax.set_title(title or "the round executed under drawn drilling times")

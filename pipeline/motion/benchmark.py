@@ -51,8 +51,12 @@ class MoveBenchmarkSettings:
 
     pairs: int = field(default=100, metadata=rule(ge=1))  # random hole pairs per boom (the issue asks 1000)
     seed: int = field(default=0, metadata=rule(ge=0))
-    planner_time_s: float = field(default=2.0, metadata=rule(gt=0))  # RRTConnect's budget per move
-    simplify_s: float = field(default=0.5, metadata=rule(gt=0))
+    # OMPL's budget per move as counts (the same pairs give the same paths on any machine); the wall-time
+    # budgets replace them only when set (interactive use: then results depend on the machine's load)
+    planner_iterations: int = field(default=5000, metadata=rule(ge=1))
+    simplify_steps: int = field(default=40, metadata=rule(ge=0))
+    planner_time_s: float | None = field(default=None, metadata=rule(gt=0))
+    simplify_s: float | None = field(default=None, metadata=rule(gt=0))
     distance_batch: int = field(default=4096, metadata=rule(ge=1))  # configuration pairs per boom-boom call
     distance_repeats: int = field(default=20, metadata=rule(ge=1))
 
@@ -150,7 +154,8 @@ def move_benchmark(rig: Rig, plan: DrillPlan, reach: Reach, solvers: list[Hybrid
     g = np.random.default_rng(settings.seed)
     poses = plan.poses(rig.booms[0].boom.preview_depth)
     index_of = {h: k for k, h in enumerate(plan.holes["hole_id"])}
-    planner = PlannerSettings(time_s=settings.planner_time_s, simplify_s=settings.simplify_s, seed=settings.seed)
+    planner = PlannerSettings(iterations=settings.planner_iterations, simplify_steps=settings.simplify_steps,
+                              time_s=settings.planner_time_s, simplify_s=settings.simplify_s, seed=settings.seed)
     records, started = [], time.perf_counter()
     for i, (mount, solver) in enumerate(zip(rig.booms, solvers, strict=True)):
         ok = _ok_rows(reach, mount.name)

@@ -50,12 +50,14 @@ KIND = {STRAIGHT: "straight", RETRACT: "retract", PLANNED: "planned", FAILED: "f
 KINDS = ("self", "tunnel")  # what the book certifies; boom-boom is the timeline's oracle's (module doc)
 
 
-def used_moves(routes: list[list[int]], park: int) -> list[np.ndarray]:
-    """Per boom, its moves ``(k, 2)`` (from node, to node) park to park along its route."""
+def used_moves(routes: list[list[int]], park: int, starts: list[int] | None = None) -> list[np.ndarray]:
+    """Per boom, its moves ``(k, 2)`` (from node, to node) along its route, from its start node
+    (``starts``; default park) to park."""
     out = []
-    for r in routes:
-        nodes = np.array([park, *r, park])
-        out.append(np.stack([nodes[:-1], nodes[1:]], -1) if r else np.zeros((0, 2), np.int64))
+    for b, r in enumerate(routes):
+        first = park if starts is None else int(starts[b])
+        nodes = np.array([first, *r, park])
+        out.append(np.stack([nodes[:-1], nodes[1:]], -1) if r or first != park else np.zeros((0, 2), np.int64))
     return out
 
 
@@ -107,7 +109,7 @@ class MoveBook:
         """``inst`` with the durations of every detour planned for ``routes`` (module docstring)."""
         started = time.perf_counter()
         move_s, changed = inst.move_s, False
-        for b, moves in enumerate(used_moves(routes, self.H)):
+        for b, moves in enumerate(used_moves(routes, self.H, inst.starts)):
             moves = moves[moves[:, 0] != moves[:, 1]]
             todo = np.unique(moves[self.status[b, moves[:, 0], moves[:, 1]] == UNKNOWN], axis=0)
             if not len(todo):
@@ -156,22 +158,23 @@ class MoveBook:
             self.status[b, x, y] = kind
             self.reason[(b, x, y)] = m.reason
 
-    def floors(self, routes: list[list[int]]) -> dict[str, float | None]:
+    def floors(self, routes: list[list[int]], starts: list[int] | None = None) -> dict[str, float | None]:
         """The smallest certified floor of self and tunnel clearance over the routes' moves (m; failed
         moves included, with their straight line's floor; None when no move was looked at)."""
         out = {}
         for kind in KINDS:
-            vals = [self.floor[kind][b, m[:, 0], m[:, 1]] for b, m in enumerate(used_moves(routes, self.H))]
+            vals = [self.floor[kind][b, m[:, 0], m[:, 1]] for b, m in enumerate(used_moves(routes, self.H, starts))]
             vals = np.concatenate([v for v in vals if len(v)] or [np.zeros(0)])
             vals = vals[np.isfinite(vals)]
             out[kind] = float(vals.min()) if len(vals) else None
         return out
 
-    def kinds(self, routes: list[list[int]]) -> tuple[dict[str, int], list[tuple[int, int, int]]]:
+    def kinds(self, routes: list[list[int]], starts: list[int] | None = None
+              ) -> tuple[dict[str, int], list[tuple[int, int, int]]]:
         """Counts of the routes' moves by kind, and the failed ones ``(boom, from, to)``."""
         counts = {name: 0 for name in KIND.values()}
         failed = []
-        for b, moves in enumerate(used_moves(routes, self.H)):
+        for b, moves in enumerate(used_moves(routes, self.H, starts)):
             for u, v in moves:
                 if u == v:
                     continue

@@ -9,7 +9,11 @@ An :class:`Instance` holds plain arrays, so the stage can fill it from any reach
   index ``H`` being its park (entries of holes b cannot drill are never read);
 - ``precedence``: pairs ``(i, j)``, hole i finished before hole j starts (any booms);
 - ``collars (H, 3)`` and ``base_y (B,)`` for the spec's baselines (side of the centre line, nearest
-  collar), ``park_points (B, 3)``: where each boom's drill end is at park (nearest's first step).
+  collar), ``park_points (B, 3)``: where each boom's drill end is at park (nearest's first step);
+- ``start (B,)``: the node each boom stands at when the round begins (None: every boom at its park).
+  A round handed on after an interruption (:mod:`pipeline.execution.interrupt`) starts where the booms
+  stand, at holes already drilled (out of every boom's reach, so not drilled again); every round ends
+  at park.
 """
 
 from __future__ import annotations
@@ -92,6 +96,7 @@ class Instance:
     base_y: np.ndarray | None = None  # (B,) m
     park_points: np.ndarray | None = None  # (B, 3) m
     reasons: tuple[str, ...] | None = None  # per hole: why no boom can drill it (from the reach table)
+    start: tuple[int, ...] | None = None  # (B,) node each boom starts from (index H: park); None: parks
 
     def __post_init__(self):
         B, H = len(self.booms), len(self.hole_ids)
@@ -111,8 +116,12 @@ class Instance:
                 raise ConfigError(f"round instance: {name} has shape {np.shape(a)}, expected {shape}")
         if np.any(self.phases < 0):
             raise ConfigError("round instance: negative drilling phase")
+        if self.start is not None:
+            if len(self.start) != B or any(not (0 <= int(n) <= H) for n in self.start):
+                raise ConfigError(f"round instance: start {self.start} is not one node (0..{H}) per boom")
         used = np.zeros((B, H + 1), bool)
         used[:, :H], used[:, H] = self.reach, True
+        used[np.arange(B), self.starts] = True
         sub = self.move_s[used[:, :, None] & used[:, None, :]]
         if not np.all(np.isfinite(sub)) or np.any(sub < 0):
             raise ConfigError("round instance: move times between holes a boom can drill must be finite and >= 0")
@@ -127,6 +136,11 @@ class Instance:
     @property
     def n_holes(self) -> int:
         return len(self.hole_ids)
+
+    @property
+    def starts(self) -> list[int]:
+        """The node each boom starts from (H: park)."""
+        return [self.n_holes] * self.n_booms if self.start is None else [int(n) for n in self.start]
 
     @property
     def drill_s(self) -> np.ndarray:

@@ -35,6 +35,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 import torch
@@ -44,6 +45,16 @@ from pipeline.motion.path import Path
 from pipeline.motion.timing import JointLimits, Profile, profile
 
 D = torch.float64
+
+
+@runtime_checkable
+class ConflictOracle(Protocol):
+    """What the timeline needs of an oracle: the first conflict of pairs of segments (and, for the
+    planner's fallbacks, the clearance of booms standing at nodes). :class:`KinematicOracle` is the
+    rig's; tests plant simpler ones (a table of which nodes conflict). Only a kinematic oracle has a
+    rig, so only it gets a move book (certified moves, detours) and the park screening."""
+
+    def check(self, a: int, seg_a: dict, b: int, seg_b: dict, lo: np.ndarray, hi: np.ndarray): ...
 
 
 class KinematicOracle:

@@ -14,12 +14,16 @@ slowest drawn round, executed by events).
   manifest that tells a reader which files belong to it), then all are moved in by renames under one
   lock, the summary last; files of an earlier set that this one does not write (figures off, replay
   off) are removed under the same lock, so no stale sibling is read as part of the new set.
+
+The executed round (``python -m pipeline.execute``) is a set of its own, ``EXECUTED`` (``<stem>_executed*``
+and ``<stem>_draws.csv``), beside the planned one and written the same way; the planned files are its
+inputs, so it can never overwrite them.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from pipeline.core.errors import InputError
@@ -29,26 +33,37 @@ SUFFIXES = {"round": "_round.csv", "trajectory": "_trajectory.csv", "json": "_ro
             "face": "_round_face.png", "gantt": "_round_gantt.png", "replay": "_round_replay.html",
             # executed by events (spec section 8): the actions and interlocks files, realised makespans
             "actions": "_actions.csv", "interlocks": "_interlocks.csv", "executed": "_round_executed.png",
-            "executed_replay": "_round_executed_replay.html"}
+            "executed_replay": "_round_executed_replay.html",
+            "moves": "_moves.npz"}  # the planner's move book, re-used by a round handed on (round/move_file.py)
+# the executed round (pipeline.execute): realised files, the draws, and the figures
+EXECUTED = {"round": "_executed_round.csv", "trajectory": "_executed_trajectory.csv", "json": "_executed.json",
+            "actions": "_executed_actions.csv", "interlocks": "_executed_interlocks.csv",
+            "draws": "_draws.csv", "makespans": "_executed_makespans.png", "replay": "_executed_replay.html"}
 
 
 @dataclass(frozen=True)
 class RoundPaths:
     folder: Path
     stem: str
+    suffixes: Mapping[str, str] = field(default_factory=lambda: SUFFIXES)
 
     def __getitem__(self, kind: str) -> Path:
-        return self.folder / f"{self.stem}{SUFFIXES[kind]}"
+        return self.folder / f"{self.stem}{self.suffixes[kind]}"
 
     def all(self) -> dict[str, Path]:
-        return {k: self[k] for k in SUFFIXES}
+        return {k: self[k] for k in self.suffixes}
+
+    @property
+    def tag(self) -> str:
+        return f"{self.stem}{self.suffixes['json'].removesuffix('.json')}"
 
     @property
     def lock(self) -> Path:
-        return self.folder / f".{self.stem}_round.lock"
+        return self.folder / f".{self.tag}.lock"
 
 
-def round_paths(plan_path: str | Path, out: str | Path | None, inputs: Iterable[str | Path] = ()) -> RoundPaths:
+def round_paths(plan_path: str | Path, out: str | Path | None, inputs: Iterable[str | Path] = (),
+                suffixes: Mapping[str, str] = SUFFIXES) -> RoundPaths:
     """The set for ``out`` (default: beside the plan, named after it), checked before any work.
 
     ``out``: a folder (an existing one, or a name without a suffix, created) or the round table's name
@@ -58,17 +73,17 @@ def round_paths(plan_path: str | Path, out: str | Path | None, inputs: Iterable[
     below a file."""
     plan_path = Path(plan_path)
     if out is None or str(out) == "":
-        paths = RoundPaths(plan_path.parent, plan_path.stem)
+        paths = RoundPaths(plan_path.parent, plan_path.stem, suffixes)
     else:
         o = Path(out)
         if o.is_dir() or str(out).endswith(("/", "\\")) or (o.suffix == "" and not o.exists()):
-            paths = RoundPaths(o, plan_path.stem)
+            paths = RoundPaths(o, plan_path.stem, suffixes)
         elif o.suffix.lower() == ".csv":
             name = o.name[: -len(".csv")]
-            paths = RoundPaths(o.parent, name.removesuffix("_round") or name)
+            paths = RoundPaths(o.parent, name.removesuffix("_round") or name, suffixes)
         else:
             raise InputError(f"out = {out}: expected a folder or the round table's name (<stem>_round.csv); the "
-                             f"set's other files ({', '.join(SUFFIXES.values())}) are named after it, so "
+                             f"set's other files ({', '.join(suffixes.values())}) are named after it, so "
                              f"'{o.suffix or o.name}' would collide with them or make a folder of that name")
     if paths.folder.exists() and not paths.folder.is_dir():
         raise InputError(f"out = {out}: {paths.folder} is a file, not a folder")
@@ -88,11 +103,11 @@ def write_round_set(paths: RoundPaths, summary: dict, writers: Mapping[str, Call
     """Stage every file ``writers`` names (kind -> ``write(path)``), then the summary with the MD5 of
     each (``files``), call ``log_staged`` (kind -> staged path: MLflow logs from there), and publish the
     set under its lock; an earlier set's files of kinds not written are removed. Returns the summary."""
-    unknown = (set(writers) - set(SUFFIXES)) | (set(writers) & {"json"})  # the summary is written here, last
+    unknown = (set(writers) - set(paths.suffixes)) | (set(writers) & {"json"})  # the summary is written here, last
     if unknown:
         raise ValueError(f"write_round_set: not a file of the set written by a writer: {sorted(unknown)}")
     paths.folder.mkdir(parents=True, exist_ok=True)
-    with staged_folder(paths.folder, f"{paths.stem}_round") as stage:
+    with staged_folder(paths.folder, paths.tag) as stage:
         staged = {}
         for kind, write in writers.items():
             staged[kind] = stage / paths[kind].name

@@ -37,6 +37,7 @@ from pipeline.round.baselines import naive_routes, nearest_routes
 from pipeline.round.bounds import lower_bound
 from pipeline.round.detours import PLANNED, RETRACT, MoveBook
 from pipeline.round.instance import Instance, RoundSettings
+from pipeline.round.oracle import ConflictOracle, KinematicOracle
 from pipeline.round.routing import route
 from pipeline.round.seeds import sweep_routes
 from pipeline.round.timeline import Timeline, resolve
@@ -85,12 +86,13 @@ class _Timer:
 def make_book(inst: Instance, oracle, settings: RoundSettings) -> MoveBook | None:
     """The move book of a kinematic oracle (None for an oracle without a rig). With ``detours: false``
     it still certifies every move and fails those it cannot keep straight (never unchecked)."""
-    if getattr(oracle, "rig", None) is None:
+    if not isinstance(oracle, KinematicOracle):  # a planted conflict table: nothing to certify moves against
         return None
     return MoveBook(oracle, inst.n_holes, settings)
 
 
-def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callable[[str], None] | None = None,
+def plan_round(inst: Instance, oracle: ConflictOracle, settings: RoundSettings,
+               progress: Callable[[str], None] | None = None,
                time_limit_s: float | None = None, book: MoveBook | None = None, baselines: bool = True) -> RoundPlan:
     """The round of ``inst`` (module docstring); ``book``: the move book to use (default
     :func:`make_book`); ``baselines``: time the spec's naive and nearest after the sweeps, as
@@ -100,6 +102,8 @@ def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callab
     t0 = time.perf_counter()
     say = progress or (lambda _msg: None)
     book = book if book is not None else make_book(inst, oracle, settings)
+    if book is not None:  # a book given with moves already known (a round handed on): their detours' durations
+        inst = book.apply(inst)
     timer = _Timer(inst, oracle, settings, book)
     lb = lower_bound(inst)
     best, seed, done = None, None, {}
@@ -137,7 +141,8 @@ def plan_round(inst: Instance, oracle, settings: RoundSettings, progress: Callab
 
     routing = best is None or not out_of_budget()  # at least one solve, budget allowing
     blocked = None
-    if routing and settings.blocked_penalty_s > 0 and inst.n_booms > 1:
+    # (not for a round handed on: its booms do not start at park, and its re-planning is on the clock)
+    if routing and settings.blocked_penalty_s > 0 and inst.n_booms > 1 and inst.start is None:
         blocked = park_blocked(inst, oracle, settings.blocked_neighbours, settings.blocked_screen_m)
         say(f"moves blocked by another boom at park: {int(blocked.sum())} of the {settings.blocked_neighbours} "
             "shortest per node (penalised in the routing)")
@@ -225,7 +230,7 @@ def reversed_variant(timer: Callable[[list[list[int]]], Timeline], routes: list[
     holes the other way round keeps them apart. Without precedence pairs only (reversing would break
     them); cheap (a timeline per boom), so every routing solve's routes are tried both ways.
     ``timer``: routes -> timeline (the planner's, which looks at every move first)."""
-    if inst.precedence or inst.n_booms < 2:
+    if inst.precedence or inst.n_booms < 2 or inst.start is not None:  # a handed-on route's first hole is fixed
         return None
     best = None
     for b in range(inst.n_booms):
@@ -247,9 +252,9 @@ def park_blocked(inst: Instance, oracle, neighbours: int = 12, screen_m: float =
     one batch per boom (:func:`pipeline.motion.checks.check_straight_moves`)."""
     B, H = inst.n_booms, inst.n_holes
     bad = np.zeros((B, H + 1, H + 1), bool)
-    rig = getattr(oracle, "rig", None)
-    if rig is None:
+    if not isinstance(oracle, KinematicOracle):
         return bad
+    rig = oracle.rig
     for a in range(B):
         ok = np.concatenate([inst.reach[a], [True]])
         nodes = np.flatnonzero(ok)
@@ -282,11 +287,32 @@ def seeded(inst: Instance) -> bool:
 def seed_routes(inst: Instance, kind: str, band_m: float = 1.0) -> list[list[int]]:
     """The routes of a seed: the spec's ``naive`` and ``nearest``, or a sweep (:mod:`pipeline.round.seeds`)."""
     if kind.startswith("sweep"):
-        return sweep_routes(inst, -1 if "-y" in kind else 1, band_m * (2 if kind.endswith("wide") else 1))
-    return {"naive": naive_routes, "nearest": nearest_routes}[kind](inst)
+        routes = sweep_routes(inst, -1 if "-y" in kind else 1, band_m * (2 if kind.endswith("wide") else 1))
+    else:
+        routes = {"naive": naive_routes, "nearest": nearest_routes}[kind](inst)
+    return first_where_standing(inst, routes)
+
+
+def first_where_standing(inst: Instance, routes: list[list[int]]) -> list[list[int]]:
+    """A round handed on: a boom standing at a hole it has not drilled drills it first (the routing's
+    rule, :mod:`pipeline.round.routing`); other routes as they are."""
+    if inst.start is None:
+        return routes
+    out = [list(r) for r in routes]
+    for b, s in enumerate(inst.starts):
+        if s < inst.n_holes and inst.reach[b, s] and s in out[b]:
+            out[b].remove(s)
+            out[b].insert(0, s)
+    return out
 
 
 def baseline(inst: Instance, oracle, kind: str, settings: RoundSettings, book: MoveBook | None = None) -> Timeline:
     """The spec's ``naive`` or ``nearest`` round, with the same conflict handling (and, given the
     planner's ``book``, the same moves)."""
-    return _Timer(inst, oracle, settings, book)(seed_routes(inst, kind))
+    return timed_routes(inst, oracle, settings, book, seed_routes(inst, kind))
+
+
+def timed_routes(inst: Instance, oracle, settings: RoundSettings, book: MoveBook | None,
+                 routes: list[list[int]]) -> Timeline:
+    """Given routes timed as the planner times a candidate (every move looked at, waits inserted)."""
+    return _Timer(inst, oracle, settings, book)(routes)

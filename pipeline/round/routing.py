@@ -35,6 +35,11 @@ intervals do not overlap (``Max`` of four reified constraints: a vehicle differs
 ends before the other begins; the time dimension then gets slack, the waits, as with precedence),
 and (2) where one boom can drill both, a soft same-vehicle constraint (``AddSoftSameVehicleConstraint``)
 costing that wait: on one boom they can never meet.
+
+**A round handed on** (``Instance.start``): a boom that starts elsewhere than at park (where it stood
+when the round was interrupted) gets its own start node, that place (no service time, only its
+vehicle), and still ends at its park; one that stands at a hole it has not drilled yet (it had moved
+there when the round stopped) drills that hole first.
 """
 
 from __future__ import annotations
@@ -93,16 +98,21 @@ def route(inst: Instance, settings: RoundSettings, same_boom: Mapping[tuple[int,
     n = len(holes)
     if n == 0:
         return Routes([[] for _ in range(B)], left_out, 0, "empty")
-    node_hole = np.concatenate([holes, np.full(B, H)])  # node -> hole index (H: park)
-    manager = pywrapcp.RoutingIndexManager(n + B, B, [n + b for b in range(B)], [n + b for b in range(B)])
+    # node -> hole index (H: park); then, handed on, one start node per boom (where it stands)
+    handed_on = inst.start is not None
+    node_hole = np.concatenate([holes, np.full(B, H), inst.starts if handed_on else np.zeros(0, int)])
+    n_nodes = len(node_hole)
+    ends = [n + b for b in range(B)]
+    starts = [n + B + b for b in range(B)] if handed_on else ends
+    manager = pywrapcp.RoutingIndexManager(n_nodes, B, starts, ends)
     model = pywrapcp.RoutingModel(manager)
     drill_ms = np.round(inst.drill_s[holes] * MS).astype(np.int64)
-    service = np.concatenate([drill_ms, np.zeros(B, np.int64)])
+    service = np.concatenate([drill_ms, np.zeros(n_nodes - n, np.int64)])
     transit_cbs = []
     for b in range(B):
         mv = inst.move_s[b][np.ix_(node_hole, node_hole)]
-        ok = np.concatenate([inst.reach[b, holes], np.zeros(B, bool)])
-        ok[n + b] = True  # only its own park
+        ok = np.concatenate([inst.reach[b, holes], np.zeros(n_nodes - n, bool)])
+        ok[ends[b]] = ok[starts[b]] = True  # only its own park (and start)
         mv = np.where(ok[:, None] & ok[None, :], mv, 0.0)
         mv_ms = np.round(mv * MS).astype(np.int64)
         transit_cbs.append(model.RegisterTransitMatrix((mv_ms + service[:, None]).tolist()))
@@ -119,6 +129,9 @@ def route(inst: Instance, settings: RoundSettings, same_boom: Mapping[tuple[int,
             model.VehicleVar(manager.NodeToIndex(k)).RemoveValues(banned)
     node_of = {int(h): k for k, h in enumerate(holes)}
     solver = model.solver()
+    for b, s in enumerate(inst.starts if handed_on else ()):
+        if s < H and s in node_of and inst.reach[b, s]:  # standing at a hole not drilled yet: drill it first
+            solver.Add(model.NextVar(model.Start(b)) == manager.NodeToIndex(node_of[s]))
     for i, j in inst.precedence:
         if i in node_of and j in node_of:
             ci, cj = time.CumulVar(manager.NodeToIndex(node_of[i])), time.CumulVar(manager.NodeToIndex(node_of[j]))

@@ -32,7 +32,7 @@ def round_table(inst: Instance, tl: Timeline, joints, joint_names) -> pd.DataFra
     for b, route in enumerate(tl.routes):
         q = np.asarray(joints[b])
         for k, h in enumerate(route):
-            start = float(tl.arrive[b][k])
+            start = tl.drill_at(b, k)
             rows[h].update({"boom": inst.booms[b], "order": k + 1, "t_start": start,
                             "t_end": start + float(inst.drill_s[h]), "status": "ok", "reason": ""})
             rows[h].update(dict(zip(joint_names, q[h].tolist(), strict=True)))
@@ -46,12 +46,13 @@ def trajectory_table(inst: Instance, tl: Timeline, oracle, joint_names, unclear=
     H, frames = inst.n_holes, []
     unclear = {(int(b), int(u), int(v)) for b, u, v in unclear}
     for b, route in enumerate(tl.routes):
-        q_cur = oracle.joints[b][H].clone()
-        ts, qs, ev, hid = [0.0], [q_cur.numpy()], ["park"], [""]
-        ready, node = 0.0, H
+        node = tl.start_node(b)  # park, or where the boom stood when the round was handed on
+        q_cur = oracle.joints[b][node].clone()
+        ts, qs, ev, hid = [0.0], [q_cur.numpy()], ["park" if node == H else "wait"], [""]
+        ready = 0.0
         for k, tgt in enumerate([*route, H]):
             ms, ar = float(tl.move_start[b][k]), float(tl.arrive[b][k])
-            if ms > ready and k > 0:
+            if ms > ready + 1e-9 and k > 0:  # a wait, not the rounding of a re-timed round
                 ts.append(ready), qs.append(q_cur.numpy()), ev.append("wait"), hid.append("")
             if ar > ms:
                 rt, rq = oracle.rows(b, node, tgt, q_cur)
@@ -62,7 +63,9 @@ def trajectory_table(inst: Instance, tl: Timeline, oracle, joint_names, unclear=
             if tgt == H:
                 ts.append(ar), qs.append(q_cur.numpy()), ev.append("done"), hid.append("")
                 break
-            t, name = ar, inst.hole_ids[tgt]
+            t, name = tl.drill_at(b, k), inst.hole_ids[tgt]
+            if t > ar + 1e-9:  # standing at the hole before drilling it (an interlock)
+                ts.append(ar), qs.append(q_cur.numpy()), ev.append("wait"), hid.append("")
             for phase, dur in zip(("collar", "drill", "retract"), inst.phases[tgt], strict=True):
                 ts.append(t), qs.append(q_cur.numpy()), ev.append(phase), hid.append(name)
                 t += float(dur)
@@ -71,8 +74,12 @@ def trajectory_table(inst: Instance, tl: Timeline, oracle, joint_names, unclear=
         df.insert(0, "t", ts)
         df.insert(0, "boom", inst.booms[b])
         df["event"], df["hole_id"] = ev, hid
-        # equal instants (a move starting at 0, a phase of 0 s): the first row of the instant names it
-        frames.append(df[~df["t"].duplicated(keep="first")])
+        # equal instants (a move starting at 0, a phase of 0 s): the first row of the instant names it;
+        # a round handed on to a boom that drills first where it stands starts with that collar row
+        keep = ~df["t"].duplicated(keep="first")
+        if tl.start_node(b) != H and len(df) > 1 and df["t"].iloc[1] == df["t"].iloc[0]:
+            keep.iloc[0], keep.iloc[1] = False, True
+        frames.append(df[keep])
     return pd.concat(frames, ignore_index=True)
 
 

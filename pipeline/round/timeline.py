@@ -59,6 +59,10 @@ class Timeline:
     move_start: list[np.ndarray]
     arrive: list[np.ndarray]
     park: int  # the park node index (H)
+    start: list[int] | None = None  # per boom the node it starts from (None: park)
+    # per boom, when each hole's drilling starts (None: on arrival, as the planner times it; a round
+    # executed by events may stand at a hole, waiting at an interlock, before drilling it)
+    drill_start: list[np.ndarray] | None = None
     repairs: list[dict] = field(default_factory=list)
     conflicts_left: int = 0
     sequential: bool = False
@@ -67,6 +71,13 @@ class Timeline:
     @property
     def makespan(self) -> float:
         return max((float(a[-1]) for a in self.arrive), default=0.0)
+
+    def start_node(self, b: int) -> int:
+        return self.park if self.start is None else int(self.start[b])
+
+    def drill_at(self, b: int, k: int) -> float:
+        """When boom b starts drilling the k-th hole of its route."""
+        return float(self.arrive[b][k] if self.drill_start is None else self.drill_start[b][k])
 
 
 def simulate(inst: Instance, routes: list[list[int]], not_before: list[np.ndarray] | None = None) -> Timeline:
@@ -83,7 +94,7 @@ def simulate(inst: Instance, routes: list[list[int]], not_before: list[np.ndarra
     for _ in range(H + 2):  # a fixed point: each pass can only push ends later (a chain per pass)
         starts, arrives, new_end = [], [], end.copy()
         for b, route in enumerate(routes):
-            t, node = 0.0, H
+            t, node = 0.0, inst.starts[b]
             ms, ar = np.empty(len(route) + 1), np.empty(len(route) + 1)
             for k, tgt in enumerate([*route, H]):
                 mv = float(inst.move_s[b, node, tgt])
@@ -97,7 +108,8 @@ def simulate(inst: Instance, routes: list[list[int]], not_before: list[np.ndarra
             starts.append(ms)
             arrives.append(ar)
         if np.array_equal(new_end, end):
-            return Timeline([list(r) for r in routes], starts, arrives, H)
+            return Timeline([list(r) for r in routes], starts, arrives, H,
+                            start=None if inst.start is None else inst.starts)
         end = new_end
     raise ConfigError("round: the precedence pairs and the booms' hole orders form a cycle (a hole would have "
                       "to wait for itself); check round.precedence")
@@ -105,10 +117,10 @@ def simulate(inst: Instance, routes: list[list[int]], not_before: list[np.ndarra
 
 def segments(tl: Timeline, b: int) -> dict[str, np.ndarray]:
     """Boom b's segments in time order: ``t0, t1, u, v`` (u == v: standing), ``k`` (the move that
-    leads into it; -1 for the first standing at park) and ``p`` (the node that move starts from). The
-    last one (at park) ends at inf."""
+    leads into it; -1 for the first standing, at park or the boom's start node) and ``p`` (the node that
+    move starts from). The last one (at park) ends at inf."""
     H, route, ms, ar = tl.park, tl.routes[b], tl.move_start[b], tl.arrive[b]
-    nodes = [H, *route, H]
+    nodes = [tl.start_node(b), *route, H]
     rows = []
     prev_end = 0.0
     for k in range(len(route) + 1):
@@ -243,17 +255,35 @@ def _escalate(tl: Timeline, fix, seen: dict, escalations: int = ESCALATIONS):
     return boom, k, until, rec
 
 
-def sequential(inst: Instance, routes: list[list[int]]) -> Timeline:
-    """One boom at a time, each from park to park, in boom order."""
+def sequential(inst: Instance, routes: list[list[int]], order: list[int] | None = None) -> Timeline:
+    """One boom at a time, each from its start (park) to park, in ``order`` (default: boom order)."""
     nb = [np.zeros(len(r) + 1) for r in routes]
     t = 0.0
-    for b in range(len(routes)):
+    for b in order if order is not None else range(len(routes)):
         nb[b][0] = t
         tl = simulate(inst, routes, nb)
-        t = float(tl.arrive[b][-1]) if routes[b] else t
+        t = float(tl.arrive[b][-1]) if routes[b] or inst.starts[b] != inst.n_holes else t
     tl = simulate(inst, routes, nb)
     tl.sequential = True
     return tl
+
+
+def sequential_clearest(inst: Instance, routes: list[list[int]], oracle) -> Timeline:
+    """The one-boom-at-a-time fallback. From park the boom order does not matter (the others stand at
+    park, clear of every hole: the module docstring). A round handed on starts with the booms standing
+    at holes, where one may be in another's way: every order of the booms is tried (B! orders, B <= 3
+    on a carrier) and the one with the fewest conflicts (then the shortest) kept."""
+    if inst.start is None or len(routes) < 2:
+        return sequential(inst, routes)
+    from itertools import permutations
+
+    best, key = None, None
+    for order in permutations(range(len(routes))):
+        tl = sequential(inst, routes, list(order))
+        _, n_bad, _ = scan(tl, oracle, full=True)
+        if key is None or (n_bad, tl.makespan) < key:
+            best, key = tl, (n_bad, tl.makespan)
+    return best
 
 
 def resolve(inst: Instance, routes: list[list[int]], oracle, max_repairs: int = 300, measure: bool = True,
@@ -271,7 +301,7 @@ def resolve(inst: Instance, routes: list[list[int]], oracle, max_repairs: int = 
         if fix is not None:
             fix = _escalate(tl, fix, seen, escalations)
         if fix is None:
-            tl = sequential(inst, routes)
+            tl = sequential_clearest(inst, routes, oracle)
             break
         boom, k, until, rec = fix
         rec["wait_s"] = until - float(tl.move_start[boom][k])

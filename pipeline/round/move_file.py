@@ -1,0 +1,101 @@
+"""The planner's move book on disk (``<stem>_moves.npz``): what a round that is handed on re-uses.
+
+Planning a round certifies every move it looks at and plans detours (OMPL) for those that are not
+clear straight: most of the planning time. A round interrupted on the rig is re-planned from where
+the booms stand (:mod:`pipeline.execution.interrupt`) over the same holes and joint solutions, so the
+schedule stage writes its :class:`pipeline.round.detours.MoveBook` with the round and the executor
+reads it back: only moves never looked at are certified or planned again.
+
+The file is a numpy ``.npz`` read with ``allow_pickle=False`` (no code runs on load): each boom's
+joint solutions (the book is valid only for them), the status and certified floors of every move,
+the detours' waypoints and the reasons, and the settings the certificates were made under (sample
+spacing, refinements, margins, detour settings). :func:`load_book` refuses, with the reason, a file
+whose joints or settings differ from the caller's: a certificate for another margin is no certificate.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path as FilePath
+
+import numpy as np
+import torch
+
+from pipeline.core.errors import InputError
+from pipeline.motion.path import Path
+from pipeline.round.detours import KINDS, MoveBook
+from pipeline.round.instance import RoundSettings
+
+VERSION = 1
+
+
+def _meta(book: MoveBook) -> dict:
+    p = book.planner
+    return {"version": VERSION, "resolution": book.resolution, "refinements": book.refinements,
+            "tolerance": book.tolerance, "margin": {k: float(v) for k, v in book.margin.items()},
+            "detours": bool(book.detours),
+            "planner": {"iterations": p.iterations, "simplify_steps": p.simplify_steps, "seed": p.seed,
+                        "box_margin": p.box_margin, "time_s": p.time_s}}
+
+
+def save_book(book: MoveBook, path) -> None:
+    """Write ``book`` (its oracle's joints, statuses, floors, detours, reasons) to ``path`` (.npz)."""
+    joints = np.stack([q.numpy() for q in book.oracle.joints])
+    keys, lengths, points = [], [], []
+    for b, paths in enumerate(book.oracle.detours):
+        for (u, v), p in sorted(paths.items()):
+            keys.append((b, u, v))
+            w = p.waypoints.detach().cpu().numpy()
+            lengths.append(len(w))
+            points.append(w)
+    rk = sorted(book.reason)
+    n = joints.shape[-1]
+    with open(path, "wb") as f:
+        np.savez_compressed(
+            f, meta=np.array(json.dumps(_meta(book))), joints=joints, status=book.status,
+            **{f"floor_{k}": book.floor[k] for k in KINDS},
+            detour_key=np.asarray(keys, np.int64).reshape(-1, 3), detour_len=np.asarray(lengths, np.int64),
+            detour_points=np.concatenate(points) if points else np.zeros((0, n)),
+            duration_key=np.asarray(sorted(book.durations), np.int64).reshape(-1, 3),
+            duration_s=np.asarray([book.durations[k] for k in sorted(book.durations)], float),
+            reason_key=np.asarray(rk, np.int64).reshape(-1, 3), reason_text=np.asarray([book.reason[k] for k in rk],
+                                                                                      dtype=str))
+
+
+def load_book(path, oracle, n_holes: int, settings: RoundSettings) -> tuple[MoveBook | None, str]:
+    """The book of ``path`` for ``oracle`` (its detours set on the oracle), or None and why not."""
+    path = FilePath(path)
+    if not path.is_file():
+        return None, f"{path}: no move book (every move is looked at again)"
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except (OSError, ValueError) as e:
+        raise InputError(f"{path}: cannot read it as a move book ({e})") from e
+    book = MoveBook(oracle, n_holes, settings)
+    meta = json.loads(str(data["meta"]))
+    if meta != json.loads(json.dumps(_meta(book))):
+        return None, f"{path}: made under other settings ({meta}); every move is looked at again"
+    joints = np.stack([q.numpy() for q in oracle.joints])
+    if data["joints"].shape != joints.shape or not np.array_equal(data["joints"], joints):
+        return None, f"{path}: made for other joint solutions; every move is looked at again"
+    if data["status"].shape != book.status.shape:
+        raise InputError(f"{path}: status has shape {data['status'].shape}, expected {book.status.shape}")
+    book.status[...] = data["status"]
+    for k in KINDS:
+        book.floor[k][...] = data[f"floor_{k}"]
+    book.durations = {tuple(int(x) for x in k): float(d) for k, d in zip(data["duration_key"], data["duration_s"],
+                                                                          strict=True)}
+    offsets = np.concatenate([[0], np.cumsum(data["detour_len"])])
+    paths = {}
+    for i, (b, u, v) in enumerate(data["detour_key"]):  # a few dozen detours
+        w = torch.as_tensor(data["detour_points"][offsets[i]:offsets[i + 1]], dtype=oracle.joints[b].dtype)
+        p = Path.through(w, oracle.limits[b])
+        if abs(p.duration - book.durations.get((int(b), int(u), int(v)), np.nan)) > 1e-9:
+            return None, f"{path}: detour ({b}, {u}, {v}) does not retrace its duration; every move is looked at again"
+        paths[(int(b), int(u), int(v))] = p
+    for (b, u, v), p in paths.items():
+        oracle.set_detour(b, u, v, p)
+    book.reason = {tuple(int(x) for x in k): str(t) for k, t in zip(data["reason_key"], data["reason_text"],
+                                                                     strict=True)}
+    return book, f"{path}: {len(data['detour_key'])} detours and {int((book.status > 0).sum())} moves known"
