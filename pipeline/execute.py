@@ -172,10 +172,10 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
     tracking = TrackingSettings.from_config(cfg.tracking)
     plan_path = project_path(coerce(cfg.plan, "str", "plan"))
     planned = _planned_set(cfg, plan_path, settings)
-    out_arg = project_path(settings.out) if settings.out else (planned.folder if settings.round else None)
-    files = round_paths(plan_path, out_arg, [*planned.all().values(), *map(project_path, model_files(cfg))],
-                        EXECUTED)
-    files = type(files)(files.folder, planned.stem, EXECUTED)  # named after the planned set
+    folder = project_path(settings.out) if settings.out else planned.folder
+    # named after the planned set, beside it or in execute.out; never one of the files it reads
+    files = round_paths(folder / f"{planned.stem}.csv", folder,
+                        [plan_path, *planned.all().values(), *map(project_path, model_files(cfg))], EXECUTED)
     require_writable(files.folder, "execute.out (its folder)")
     rig = composed_rig(cfg, model_setting)
     doc = json.loads(planned["json"].read_text())
