@@ -48,9 +48,11 @@ def home_branch(safety: SafetyModel, settings: HybridSettings = LOCAL_SEARCH) ->
 
 
 def continuation(safety: SafetyModel, settings: HybridSettings = LOCAL_SEARCH, neighbours: int = 8,
-                 seed_from_home: bool = True) -> Labeller:
+                 seed_from_home: bool = True, clear: bool = False) -> Labeller:
     """Poses -> joints by continuation (:mod:`pipeline.solvers.continuation`), and whether each
-    reaches its pose within ``settings.tol_mm``. Refinements are pose only (no safety rows).
+    reaches its pose within ``settings.tol_mm`` (and, with ``clear``, keeps every safety distance:
+    the refinements then carry the hybrid's safety rows, so a label is a clear solution; without,
+    they are pose only).
 
     ``seed_from_home``: every pose the descent from home solves is a seed (its home-branch label),
     and the walk labels only the rest, each from a solved neighbour; else only the 16 poses nearest
@@ -60,8 +62,9 @@ def continuation(safety: SafetyModel, settings: HybridSettings = LOCAL_SEARCH, n
     home = solver.space.full((0.5 * (solver.space.lower + solver.space.upper))[None])[0]
 
     def refine(start: torch.Tensor, pose: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        found = solver.refine(start, pose, use_safety=False)
-        return found.q, found.hole_error <= settings.tol_mm / 1000
+        found = solver.refine(start, pose, use_safety=clear)
+        exact = found.hole_error <= settings.tol_mm / 1000
+        return found.q, exact & (found.clearances >= 0).all(dim=-1) if clear else exact
 
     def solve(pose: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         q0 = home.to(pose).expand(len(pose), -1).clone()
