@@ -84,7 +84,8 @@ def run(cfg: DictConfig) -> dict:
     check_couplings(safety.boom, sup_sets)
     data = project_path(cfg.paths.data)
     labellers = {"home_branch": home_branch(safety), "continuation": continuation(safety),  # injected: data sits below
-                 "continuation_clear": continuation(safety, clear=True)}
+                 "continuation_clear": continuation(safety, clear=True),
+                 "continuation_rescue": continuation(safety, rescue=True)}
     with stage_run(tracking, "generate", {"stage": "generate"}) as mlrun:
         mlrun.log_params({k: as_dict(cfg[k]) for k in ("holes", "safety", "tunnel")})
         tables, meta = build_hole_sets(safety, hole_sampling(cfg.holes), unsup.size, unsup.seed, test.size,

@@ -27,7 +27,7 @@ from pipeline.data.holes import HoleSampling, in_face_window, sample_holes, samp
 from pipeline.data.tables import POSE_COLUMNS, check_table, holes_frame, joints_frame
 from pipeline.geometry.collision import SAFETY_KINDS, SafetyModel
 
-LABELS = ("sampled", "home_branch", "continuation", "continuation_clear")
+LABELS = ("sampled", "home_branch", "continuation", "continuation_clear", "continuation_rescue")
 REBUILD = "rebuild it with `python -m pipeline.generate` (or `dvc repro generate`)"
 
 
@@ -39,9 +39,10 @@ class SupervisedSet:
     kinematics) or ``holes`` (hole poses drawn like Omega_unsup, which then need a solver's labels);
     ``labels``: ``sampled`` (the drawn joints, paper 000), ``home_branch`` (each pose's solution
     that a descent from the home pose reaches), ``continuation`` (each pose solved from a solved
-    neighbour, :mod:`pipeline.solvers.continuation`) or ``continuation_clear`` (the same with
-    solutions that keep every safety distance); ``window``: keep only face-like samples
-    (mismatch study); ``couplings``: draw the joints on these linear couplings
+    neighbour, :mod:`pipeline.solvers.continuation`), ``continuation_clear`` (the same with
+    solutions that keep every safety distance) or ``continuation_rescue`` (the poses the walk misses
+    solved by the full hybrid from their nearest labelled neighbour, and walked on from);
+    ``window``: keep only face-like samples (mismatch study); ``couplings``: draw the joints on these linear couplings
     (:mod:`pipeline.data.couplings`, e.g. paper 000's pair, which leaves 6 free joints), not over
     the whole box."""
 

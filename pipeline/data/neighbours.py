@@ -23,3 +23,10 @@ def nearest_neighbours(points: torch.Tensor, query: torch.Tensor, k: int = 1,
         dist.append(best)
     idx, dist = torch.cat(idx), torch.cat(dist)
     return (idx[:, 0], dist[:, 0]) if k == 1 else (idx, dist)
+
+
+def nearest_in(points: torch.Tensor, queries: torch.Tensor, chunk: int = 256) -> torch.Tensor:
+    """For each row of ``queries (m, d)``, the index of its nearest row of ``points (n, d)``
+    (another set: nothing is excluded), in chunks of ``chunk`` queries."""
+    return torch.cat([torch.cdist(queries[start:start + chunk], points).argmin(dim=1)
+                      for start in range(0, len(queries), chunk)])
