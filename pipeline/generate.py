@@ -24,12 +24,12 @@ from pipeline.core.errors import ConfigError
 from pipeline.core.io import save_figure
 from pipeline.core.settings import parse, rule
 from pipeline.core.stage import run_stage
+from pipeline.data.couplings import parse_couplings
 from pipeline.data.hole_sets import SupervisedSet, build_hole_sets, write_hole_sets
 from pipeline.data.holes import joint_box
 from pipeline.data.tables import POSE_COLUMNS
 from pipeline.evaluation.plots import collar_clouds
-from pipeline.learning.supervised_set import home_branch_labels
-from pipeline.solvers.labels import home_branch
+from pipeline.solvers.labels import continuation, home_branch
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
@@ -49,12 +49,26 @@ class TestGroups:
 
 def supervised_sets(holes) -> dict[str, SupervisedSet]:
     """``sup`` (paper 000's Omega_sup) and every ``holes.sup_variants`` entry (e.g. SIKM's best variant)."""
-    sets = {"sup": parse(SupervisedSet, {k: v for k, v in holes.sup.items() if k != "box"}, "holes.sup")}
+    sets = {"sup": parse(SupervisedSet, {k: v for k, v in as_dict(holes.sup).items() if k != "box"}, "holes.sup")}
     for name, node in (holes.get("sup_variants") or {}).items():
         if name in ("sup", "train") or name.startswith("test_group"):
             raise ConfigError(f"holes.sup_variants.{name}: the name is taken by another hole table")
-        sets[name] = parse(SupervisedSet, node, f"holes.sup_variants.{name}")
+        try:
+            sets[name] = parse(SupervisedSet, as_dict(node), f"holes.sup_variants.{name}")
+        except ConfigError as exc:
+            if str(exc).startswith("holes.sup"):
+                raise
+            # a rule between settings (SupervisedSet.__post_init__) does not know its node: name it
+            raise ConfigError(f"holes.sup_variants.{name}: {exc}") from None
     return sets
+
+
+def check_couplings(boom, sup_sets: dict[str, SupervisedSet]) -> None:
+    """Every set's couplings parse against the boom (before any sampling)."""
+    for name, spec in sup_sets.items():
+        if spec.couplings is not None:
+            where = "holes.sup" if name == "sup" else f"holes.sup_variants.{name}"
+            parse_couplings(spec.couplings, boom.joint_names, f"{where}.couplings")
 
 
 def run(cfg: DictConfig) -> dict:
@@ -67,13 +81,15 @@ def run(cfg: DictConfig) -> dict:
     box = cfg.holes.sup.get("box")
     box = None if box is None else as_dict(box)
     joint_box(safety.boom, box)  # a bad box fails here, before any sampling
+    check_couplings(safety.boom, sup_sets)
     data = project_path(cfg.paths.data)
-    branch = home_branch(safety)  # the labelling solver, injected (learning sits below the solvers)
+    labellers = {"home_branch": home_branch(safety), "continuation": continuation(safety),  # injected: data sits below
+                 "continuation_clear": continuation(safety, clear=True),
+                 "continuation_rescue": continuation(safety, rescue=True)}
     with stage_run(tracking, "generate", {"stage": "generate"}) as mlrun:
         mlrun.log_params({k: as_dict(cfg[k]) for k in ("holes", "safety", "tunnel")})
         tables, meta = build_hole_sets(safety, hole_sampling(cfg.holes), unsup.size, unsup.seed, test.size,
-                                       list(test.seeds), sup_sets, box,
-                                       lambda q: home_branch_labels(safety.boom, q, branch))
+                                       list(test.seeds), sup_sets, box, labellers)
         meta["config"] = {k: as_dict(cfg[k]) for k in ("boom", "tunnel", "safety", "holes")}
         fig = collar_clouds({"Omega_sup": tables["sup.parquet"][POSE_COLUMNS].to_numpy(),
                              "Omega_unsup": tables["train.parquet"][POSE_COLUMNS].to_numpy()}, safety.tunnel,
@@ -84,6 +100,9 @@ def run(cfg: DictConfig) -> dict:
         mlrun.log_metrics({"unsup_rejection_rate": meta["unsup_rejection"]["rejection_rate"],
                            **{f"{name}.face_window_share": st["face_window_share"]
                               for name, st in meta["sup_sets"].items()},
+                           **{f"{name}.consistency.{k}": st["consistency"][k]
+                              for name, st in meta["sup_sets"].items()
+                              for k in ("ratio_p95", "branch_jump_share")},
                            **{f"sup.violation_share.{k}": v
                               for k, v in meta["sup_sets"]["sup"]["violation_share"].items()}})
         mlrun.log_artifact(data / "holes" / "meta.json")

@@ -40,10 +40,45 @@ def test_files_and_columns(generated):
     sup = pd.read_parquet(holes / "sup.parquet")
     assert list(sup.columns) == ["hole_id", *(f"q{i}" for i in range(1, 9)), *POSE_COLUMNS]
     on_disk = json.loads((holes / "meta.json").read_text())
-    assert on_disk["seeds"] == {"unsup": 0, "sup": {"sup": 1, "sup_best": 2}, "test": [101, 102, 103, 104, 105]}
+    assert on_disk["seeds"] == {"unsup": 0, "sup": {"sup": 1, "sup_best": 2, "coupled": 3, "continuation": 4},
+                                "test": [101, 102, 103, 104, 105]}
     assert 0 < on_disk["unsup_rejection"]["rejection_rate"] < 1
     assert set(on_disk["sup_sets"]["sup"]["violation_share"]) == {*SAFETY_KINDS, "any"}
     assert on_disk["config"]["boom"]["name"] == "jumbo8"
+
+
+def test_every_supervised_set_reports_its_label_consistency(generated):
+    _, meta, _ = generated
+    for name, stats in meta["sup_sets"].items():
+        c = stats["consistency"]
+        assert c["pairs"] > 0 and c["ratio_p95"] >= c["ratio_median"] > 0, name
+        assert 0 <= c["branch_jump_share"] <= 1, name
+    # paper 000's sampled labels on 8 joints jump branches far more often than labels a solver chose
+    for name in ("sup_best", "continuation"):
+        assert meta["sup_sets"][name]["consistency"]["branch_jump_share"] < meta["sup_sets"]["sup"]["consistency"][
+            "branch_jump_share"], name
+
+
+def test_the_coupled_set_lies_on_its_couplings(generated, jumbo8):
+    holes, meta, cfg = generated
+    df = pd.read_parquet(holes / "coupled.parquet")
+    q = torch.tensor(df[jumbo8.joint_names].to_numpy())
+    assert len(df) == cfg.holes.sup_variants.coupled.size
+    assert float((q[:, 1] + q[:, 4]).abs().max()) < 1e-12 and float((q[:, 0] - q[:, 5]).abs().max()) < 1e-12
+    assert torch.allclose(jumbo8.pose6(q), torch.tensor(df[POSE_COLUMNS].to_numpy()), atol=1e-12)
+    assert meta["sup_sets"]["coupled"]["couplings"] == [dict(r) for r in cfg.holes.sup_variants.coupled.couplings]
+
+
+def test_the_continuation_set_labels_holes_drawn_like_omega_unsup(generated, jumbo8):
+    holes, meta, cfg = generated
+    df = pd.read_parquet(holes / "continuation.parquet")
+    stats = meta["sup_sets"]["continuation"]
+    # a hole no search solved is left out, and the share labelled is reported
+    assert len(df) == stats["size"] == round(stats["relabelled_share"] * cfg.holes.sup_variants.continuation.size)
+    assert len(df) > 0.8 * cfg.holes.sup_variants.continuation.size
+    pose = torch.tensor(df[POSE_COLUMNS].to_numpy())
+    assert torch.allclose(jumbo8.pose6(torch.tensor(df[jumbo8.joint_names].to_numpy())), pose, atol=1e-12)
+    assert bool(((pose[:, 0] >= 6.0 - 1e-5) & (pose[:, 0] <= 7.0 + 1e-5)).all())  # collars on the face (labels exact)
 
 
 @pytest.mark.parametrize("name", ["train", "test_group_1", "test_group_5"])
@@ -110,6 +145,9 @@ def test_cone_angle_is_a_config_value(tmp_path):
         ("holes.cone_deg=120", r"holes.cone_deg = 120.0"),
         ("holes.face_x=[7.0,6.0]", r"holes.face_x = \[7.0, 6.0\]"),
         ("holes.test.seeds=[0,102,103,104,105]", r"seeds must all differ"),
+        ("holes.sup_variants.continuation.labels=sampled", r"holes.sup_variants.continuation: .*draws no joints"),
+        ("holes.sup_variants.coupled.couplings=[{coeffs:{q9:1}}]",
+         r"holes.sup_variants.coupled.couplings\[0\].coeffs: 'q9' is not a joint"),
     ],
 )
 def test_bad_config_is_named_and_nothing_is_overwritten(generated, tmp_path, override, pattern):

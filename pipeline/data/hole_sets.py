@@ -21,48 +21,81 @@ import torch
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.core.io import file_md5, write_json, write_parquet
 from pipeline.core.settings import rule
+from pipeline.data.consistency import label_consistency
+from pipeline.data.couplings import parse_couplings, sample_coupled_joints
 from pipeline.data.holes import HoleSampling, in_face_window, sample_holes, sample_joints
 from pipeline.data.tables import POSE_COLUMNS, check_table, holes_frame, joints_frame
 from pipeline.geometry.collision import SAFETY_KINDS, SafetyModel
 
+LABELS = ("sampled", "home_branch", "continuation", "continuation_clear", "continuation_rescue")
 REBUILD = "rebuild it with `python -m pipeline.generate` (or `dvc repro generate`)"
 
 
 @dataclass(frozen=True)
 class SupervisedSet:
-    """One Omega_sup table: ``size`` joint vectors drawn with ``seed`` within the working box;
-    ``labels``: the sampled joints (paper 000) or ``home_branch`` (each pose's solution that a local
-    search from the home pose reaches); ``window``: keep only face-like samples (mismatch study)."""
+    """One Omega_sup table of ``size`` samples drawn with ``seed``.
+
+    ``poses``: ``box`` (paper 000: joint vectors uniform in the working box, poses by forward
+    kinematics) or ``holes`` (hole poses drawn like Omega_unsup, which then need a solver's labels);
+    ``labels``: ``sampled`` (the drawn joints, paper 000), ``home_branch`` (each pose's solution
+    that a descent from the home pose reaches), ``continuation`` (each pose solved from a solved
+    neighbour, :mod:`pipeline.solvers.continuation`), ``continuation_clear`` (the same with
+    solutions that keep every safety distance) or ``continuation_rescue`` (the poses the walk misses
+    solved by the full hybrid from their nearest labelled neighbour, and walked on from);
+    ``window``: keep only face-like samples (mismatch study); ``couplings``: draw the joints on these linear couplings
+    (:mod:`pipeline.data.couplings`, e.g. paper 000's pair, which leaves 6 free joints), not over
+    the whole box."""
 
     size: int = field(metadata=rule(ge=1))
     seed: int = field(metadata=rule(ge=0))
-    labels: str = field(default="sampled", metadata=rule(choices=("sampled", "home_branch")))
+    labels: str = field(default="sampled", metadata=rule(choices=LABELS))
     window: bool = False
+    couplings: list | None = None
+    poses: str = field(default="box", metadata=rule(choices=("box", "holes")))
+
+    def __post_init__(self):
+        if self.poses == "holes" and (self.labels == "sampled" or self.window or self.couplings is not None):
+            raise ConfigError(f"Omega_sup with poses = 'holes' draws no joints: it needs labels from a solver "
+                              f"({[x for x in LABELS if x != 'sampled']}), not labels = '{self.labels}', and takes "
+                              "neither window nor couplings")
 
 
-Relabel = Callable[[torch.Tensor], tuple[torch.Tensor, float]]
+Labeller = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]  # poses (n, 6) -> joints, exact (n,)
 
 
 def supervised_table(safety: SafetyModel, spec: SupervisedSet, box: Mapping | None,
-                     relabel: Relabel | None) -> tuple[pd.DataFrame, dict]:
-    """Joints and their poses (by forward kinematics), and the set's statistics for ``meta.json``."""
+                     labellers: Mapping[str, Labeller], sampling: HoleSampling | None = None
+                     ) -> tuple[pd.DataFrame, dict]:
+    """Joints and their poses (by forward kinematics), and the set's statistics for ``meta.json``.
+    ``labellers``: the solvers of the label kinds other than ``sampled``, by name; ``sampling``:
+    how hole poses are drawn (``poses = 'holes'``)."""
     boom = safety.boom
-    q = (sample_joints_in_window(spec.size, safety, spec.seed, box) if spec.window
-         else sample_joints(spec.size, boom, spec.seed, box))
+    if spec.labels != "sampled" and spec.labels not in labellers:
+        raise ConfigError(f"Omega_sup labels = '{spec.labels}' need a labelling solver; given: {sorted(labellers)}")
     relabelled = None
-    if spec.labels == "home_branch":  # same poses, other (branch-consistent) joints
-        if relabel is None:
-            raise ConfigError("holes.sup.labels = 'home_branch' needs a relabelling function")
-        q, relabelled = relabel(q)
+    if spec.poses == "holes":
+        if sampling is None:
+            raise ConfigError("Omega_sup with poses = 'holes' needs the hole sampling")
+        target, _ = sample_holes(spec.size, safety, sampling, spec.seed)
+        q, exact = labellers[spec.labels](target)
+        q, relabelled = q[exact], float(exact.double().mean())  # a hole the solver misses has no label: left out
+    else:
+        draw = joint_sampler(boom, box, spec.couplings)
+        q = sample_joints_in_window(spec.size, safety, spec.seed, draw) if spec.window else draw(spec.size, spec.seed)
+        if spec.labels != "sampled":  # same poses, other (branch-consistent) joints where the solver is exact
+            found, exact = labellers[spec.labels](boom.pose6(q))
+            q, relabelled = torch.where(exact[:, None], found, q), float(exact.double().mean())
     frames = boom.frames(q)
     pose = boom.pose6_from_frames(frames)
     df = pd.concat([joints_frame(q, boom.joint_names), holes_frame(pose)], axis=1)
     violated = safety.violations(safety.clearances_from_frames(frames))
     any_violation = torch.stack([violated[k] for k in SAFETY_KINDS]).any(dim=0)
     stats = {
-        "size": spec.size, "seed": spec.seed, "labels": spec.labels, "window": spec.window,
+        "size": len(q), "seed": spec.seed, "poses": spec.poses, "labels": spec.labels, "window": spec.window,
         "face_window_share": float(in_face_window(pose, safety.tunnel).double().mean()),
-        "relabelled_share": relabelled,
+        "relabelled_share": relabelled,  # poses = holes: the share of holes labelled (the others left out)
+        "couplings": None if spec.couplings is None else [dict(row) for row in spec.couplings],
+        "consistency": set_consistency(boom, pose, q),
         "violation_share": {**{k: float(violated[k].double().mean()) for k in SAFETY_KINDS},
                             "any": float(any_violation.double().mean())},
     }
@@ -78,11 +111,12 @@ def build_hole_sets(
     test_seeds: list[int],
     sup_sets: Mapping[str, SupervisedSet],
     sup_box: Mapping | None = None,
-    relabel: Relabel | None = None,
+    labellers: Mapping[str, Labeller] | None = None,
 ) -> tuple[dict[str, pd.DataFrame], dict]:
     """All hole tables by file name, and the statistics that go into ``meta.json``: Omega_unsup,
     the test groups, and one Omega_sup table per entry of ``sup_sets`` (``sup`` is paper 000's),
-    drawn in ``sup_box`` (the working box; None: the full mechanical ranges)."""
+    drawn in ``sup_box`` (the working box; None: the full mechanical ranges) and labelled by
+    ``labellers`` (by label kind) where a set asks for a solver's labels."""
     seeds = [unsup_seed, *(spec.seed for spec in sup_sets.values()), *test_seeds]
     if len(set(seeds)) != len(seeds):
         raise ConfigError(f"holes: seeds must all differ (unsup, sup sets, test...), got {seeds}")
@@ -96,7 +130,7 @@ def build_hole_sets(
         test_stats.append(stats)
     sup_stats = {}
     for name, spec in sup_sets.items():
-        tables[f"{name}.parquet"], sup_stats[name] = supervised_table(safety, spec, sup_box, relabel)
+        tables[f"{name}.parquet"], sup_stats[name] = supervised_table(safety, spec, sup_box, labellers or {}, sampling)
     meta = {
         "counts": {name: len(df) for name, df in tables.items()},
         "seeds": {"unsup": unsup_seed, "sup": {n: spec.seed for n, spec in sup_sets.items()}, "test": list(test_seeds)},
@@ -108,11 +142,31 @@ def build_hole_sets(
     return tables, meta
 
 
-def sample_joints_in_window(n: int, safety: SafetyModel, seed: int, box: Mapping | None) -> torch.Tensor:
-    """``n`` joint vectors from ``box`` whose poses lie in the face window (rejection, in batches)."""
+JointSampler = Callable[[int, int], torch.Tensor]  # (n, seed) -> joints (n, n_joints)
+
+
+def joint_sampler(boom, box: Mapping | None, couplings: list | None,
+                  where: str = "holes.sup.couplings") -> JointSampler:
+    """Draws joints uniformly in ``box``, on ``couplings`` where given (checked now, before any draw)."""
+    if couplings is None:
+        return lambda n, seed: sample_joints(n, boom, seed, box)
+    rows = parse_couplings(couplings, boom.joint_names, where)
+    return lambda n, seed: sample_coupled_joints(n, boom, seed, box, rows)
+
+
+def set_consistency(boom, pose: torch.Tensor, q: torch.Tensor) -> dict[str, float]:
+    """:func:`pipeline.data.consistency.label_consistency` of a supervised set, joints scaled by their
+    mechanical ranges (as SIKM's loss scales them; a locked joint, of zero range, by 1)."""
+    lo, hi = boom.limits(q.dtype)
+    span = hi - lo
+    return label_consistency(pose, q, torch.where(span > 0, span, torch.ones_like(span)), boom.pose6)
+
+
+def sample_joints_in_window(n: int, safety: SafetyModel, seed: int, draw: JointSampler) -> torch.Tensor:
+    """``n`` joint vectors from ``draw`` whose poses lie in the face window (rejection, in batches)."""
     gen_seed, kept, have = seed, [], 0
     for _ in range(1000):
-        q = sample_joints(max(4 * (n - have), 1024), safety.boom, gen_seed, box)
+        q = draw(max(4 * (n - have), 1024), gen_seed)
         q = q[in_face_window(safety.boom.pose6(q), safety.tunnel)]
         kept.append(q)
         have += len(q)

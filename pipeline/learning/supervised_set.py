@@ -1,5 +1,6 @@
 """How Omega_sup is drawn and labelled: the working box (the range of each joint that face holes
-actually use, spec section 3), and optionally branch-consistent labels.
+actually use, spec section 3). The labels themselves (sampled, home branch, continuation) are
+:mod:`pipeline.data.hole_sets`' with the solvers of :mod:`pipeline.solvers.labels`.
 
 Paper 000 labels its supervised set from "each joint's range of activity". A rig would take those
 ranges from its logged joints; here they come from exact, collision-free solutions of holes drawn
@@ -27,7 +28,6 @@ import torch
 from pipeline.core.errors import InputError
 from pipeline.data.holes import HoleSampling, sample_holes
 from pipeline.geometry.collision import SafetyModel
-from pipeline.geometry.kinematics import Boom
 
 Solve = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]  # poses (n, 6) -> joints (n, dof), found (n,)
 
@@ -61,16 +61,3 @@ def derive_working_box(safety: SafetyModel, sampling: HoleSampling, n: int, seed
     stats = {"holes": n, "seed": seed, "ok": int(ok.sum()), "ok_share": float(ok.double().mean()),
              "percentiles": [lo_pct, hi_pct], "solve_s": solve_s}
     return box, stats
-
-
-def home_branch_labels(boom: Boom, q: torch.Tensor, solve: Solve) -> tuple[torch.Tensor, float]:
-    """Relabel sampled joints ``q (n, n_joints)`` with the solution of their own pose that a local
-    search from the home pose reaches, where it reaches it exactly (``solve``, e.g.
-    :func:`pipeline.solvers.labels.home_branch`).
-
-    An 8-joint boom reaches a hole pose along a 3-parameter family of joints, so a regression on
-    sampled joints averages incompatible branches; the home-branch label picks one branch per
-    pose, continuously (the same search from the same start). Returns the labels and the share
-    of samples relabelled (the rest keep their sampled joints)."""
-    found, exact = solve(boom.pose6(q))
-    return torch.where(exact[:, None], found, q), float(exact.double().mean())
