@@ -81,7 +81,7 @@ class ExecuteSettings:
     replan: bool = True
     monte_carlo: bool = True
     check: bool = True
-    strict: bool = True
+    strict: bool = False
     figures: bool = True
     replay: bool = True
     replay_frames: int = field(default=400, metadata=rule(ge=2))

@@ -14,6 +14,7 @@ Writes ``paths.data/benchmark/moves_<rig>.csv`` (one row per pair), ``redundancy
 from __future__ import annotations
 
 import logging
+import math
 import time
 
 import hydra
@@ -69,12 +70,15 @@ def run(cfg: DictConfig) -> dict:
                    "redundancy": saved.to_dict(orient="records")}
         write_csv(moves, out / f"moves_{rig.name}.csv")
         write_csv(saved, out / f"redundancy_{rig.name}.csv")
+        # a boom with no move (every pair blocked, or no ok hole) has no median: null in JSON, no metric
+        summary = {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in summary.items()}
         write_json(summary, out / f"moves_{rig.name}.json")
         mlrun.log_metrics({k: v for k, v in summary.items() if isinstance(v, (int, float))})
         mlrun.log_table(moves, "moves.json")
         mlrun.log_table(saved, "redundancy.json")
     log.info("moves of rig %s: %s; redundancy: %s", rig.name,
-             {k: round(v, 3) for k, v in summary.items() if k.startswith("all.")}, saved.to_dict(orient="records"))
+             {k: v if v is None else round(v, 3) for k, v in summary.items() if k.startswith("all.")},
+             saved.to_dict(orient="records"))
     return summary
 
 
