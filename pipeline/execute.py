@@ -91,6 +91,7 @@ class ExecuteSettings:
 def parse_execute(cfg: DictConfig) -> tuple[ExecuteSettings, InterruptSettings]:
     node = dict(as_dict(cfg.execute))
     inter = parse(InterruptSettings, node.pop("interrupt", None) or {}, "execute.interrupt")
+    node.pop("replan_round", None)  # round overrides, parsed with the round group (parse_replan_round)
     node["draw"] = str(node.get("draw", "0"))
     s = parse(ExecuteSettings, node, "execute")
     if s.draw != "nominal" and not s.draw.isdigit():
@@ -255,7 +256,9 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
             else:
                 from pipeline.round.instance import parse_round
 
-                round_settings = parse_round(as_dict(cfg.round), "round")
+                # the round group's settings, then execute.replan_round's (routing off by default: on the clock)
+                round_settings = parse_round({**as_dict(cfg.round), **(as_dict(cfg.execute.get("replan_round"))
+                                                                         or {})}, "round + execute.replan_round")
                 t0 = time.perf_counter()
                 inst, oracle = _instance(cfg, rig, plan, round_settings)
                 timings["instance_s"] = time.perf_counter() - t0

@@ -126,14 +126,16 @@ class HandedOn:
 def hand_on(inst, oracle, settings, st: Standing, say=None, book=None, planned_order=None) -> HandedOn:
     """Plan the holes still to drill from where the booms stand, and make the plan robust. ``book``:
     the planner's move book of the planned round (:mod:`pipeline.round.move_file`): its moves are not
-    looked at again. ``planned_order``: per boom the holes left in the planned round's order, the first
-    candidate tried when the new plan cannot be made robust (then the sweeps)."""
+    looked at again. ``planned_order``: per boom the holes left in the planned round's order: a seed of
+    the new plan beside the sweeps, and the first candidate tried when the new plan cannot be made
+    robust (then the sweeps)."""
     from pipeline.execution.interlocks import robust_round
     from pipeline.round.plan import SEEDS, plan_round, seed_routes, timed_routes
 
     t0 = time.perf_counter()
     sub, dropped = handed_on_instance(inst, st)
-    rp = plan_round(sub, oracle, settings, progress=say, baselines=False, book=book)
+    cands = {"planned order": planned_order} if planned_order is not None else None
+    rp = plan_round(sub, oracle, settings, progress=say, baselines=False, book=book, candidates=cands)
     sub_inst = rp.inst if rp.book is None else rp.book.apply(rp.inst)
     rr = robust_round(sub_inst, rp.timeline, oracle)
     # A plan whose conflicts no order of actions can part (a move that passes every place the other boom

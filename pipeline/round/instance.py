@@ -39,6 +39,7 @@ class RoundSettings:
     time_limit_s: float | None = field(default=None, metadata=rule(gt=0))
     first_solution: str = field(default="PARALLEL_CHEAPEST_INSERTION", metadata=rule(choices=FIRST_SOLUTIONS))
     span_cost: int = field(default=100, metadata=rule(ge=0))
+    routing: bool = True  # false: no OR-Tools solve; the round is the best of the seeds (a quick re-plan)
     reopt_rounds: int = field(default=4, metadata=rule(ge=0))
     max_repairs: int = field(default=300, metadata=rule(ge=0))
     escalations: int = field(default=4, metadata=rule(ge=0))

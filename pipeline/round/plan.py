@@ -93,7 +93,8 @@ def make_book(inst: Instance, oracle, settings: RoundSettings) -> MoveBook | Non
 
 def plan_round(inst: Instance, oracle: ConflictOracle, settings: RoundSettings,
                progress: Callable[[str], None] | None = None,
-               time_limit_s: float | None = None, book: MoveBook | None = None, baselines: bool = True) -> RoundPlan:
+               time_limit_s: float | None = None, book: MoveBook | None = None, baselines: bool = True,
+               candidates: dict[str, list[list[int]]] | None = None) -> RoundPlan:
     """The round of ``inst`` (module docstring); ``book``: the move book to use (default
     :func:`make_book`); ``baselines``: time the spec's naive and nearest after the sweeps, as
     candidates and routing starts (``baselines`` of the plan, ``baselines_s`` of ``planning_s``);
@@ -109,16 +110,18 @@ def plan_round(inst: Instance, oracle: ConflictOracle, settings: RoundSettings,
     best, seed, done = None, None, {}
     baselines_s = 0.0
     last_timing = 0.0  # seconds the last candidate took to time (moves looked at, waits): the next one's estimate
-    if seeded(inst):  # the sweeps, timed: the best is a candidate and the routing's start
-        for kind in SEEDS:
+    seeds = {kind: seed_routes(inst, kind, settings.sweep_band_m) for kind in SEEDS} if seeded(inst) else {}
+    seeds.update({k: first_where_standing(inst, r) for k, r in (candidates or {}).items()})  # the caller's too
+    if seeds:  # the sweeps (and given candidates), timed: the best is a candidate and the routing's start
+        for kind, routes in seeds.items():
             t_timing = time.perf_counter()
-            tl = timer(seed_routes(inst, kind, settings.sweep_band_m))
+            tl = timer(routes)
             last_timing = max(last_timing, time.perf_counter() - t_timing)
             say(f"seed {kind}: makespan {tl.makespan:.1f} s, {tl.conflicts_left} conflicts left")
             if _better(tl, best):
                 best, seed = tl, kind
         t_base = time.perf_counter()
-        for kind in BASELINES if baselines else ():  # the spec's rounds: reported, and candidates (so
+        for kind in BASELINES if baselines and seeded(inst) else ():  # the spec's rounds: reported, and candidates (so
             tl = done[kind] = timer(seed_routes(inst, kind))  # the routing can start from, and beat, them)
             say(f"baseline {kind}: makespan {tl.makespan:.1f} s, {tl.conflicts_left} conflicts left")
             if _better(tl, best):
@@ -139,7 +142,7 @@ def plan_round(inst: Instance, oracle: ConflictOracle, settings: RoundSettings,
     def out_of_budget() -> bool:  # the next solve (its time limit, if any) and its timing would pass budget_s
         return settings.budget_s is not None and remaining() < (base_limit or 0.0) + last_timing
 
-    routing = best is None or not out_of_budget()  # at least one solve, budget allowing
+    routing = best is None or (settings.routing and not out_of_budget())  # at least one solve, budget allowing
     blocked = None
     # (not for a round handed on: its booms do not start at park, and its re-planning is on the clock)
     if routing and settings.blocked_penalty_s > 0 and inst.n_booms > 1 and inst.start is None:
@@ -162,8 +165,8 @@ def plan_round(inst: Instance, oracle: ConflictOracle, settings: RoundSettings,
     rounds = 0
     r = None
     if not routing:
-        stopped = (f"budget_s ({settings.budget_s:g} s): the seeds left too little for a routing solve and its "
-                   "timing")
+        stopped = ("round.routing = false: the best seed" if not settings.routing else
+                   f"budget_s ({settings.budget_s:g} s): the seeds left too little for a routing solve and its timing")
     else:
         r = route(costed(), settings, time_limit_s=limit(), initial=None if best is None else best.routes)
         rounds = 1
@@ -210,7 +213,7 @@ def plan_round(inst: Instance, oracle: ConflictOracle, settings: RoundSettings,
     if best is None:  # cannot happen: without a candidate the routing always runs
         raise RuntimeError("round: no candidate timeline")
     planning_s = time.perf_counter() - t0
-    kept = seed is not None and best.routes == seed_routes(inst, seed, settings.sweep_band_m)
+    kept = seed is not None and best.routes == (seeds[seed] if seed in seeds else seed_routes(inst, seed))
     left_out = [int(h) for h in np.flatnonzero(~inst.drillable)]
     say(f"stopped: {stopped}")
     return RoundPlan(best, left_out, lb, rounds, penalised, sorted(apart), planning_s,
