@@ -51,6 +51,7 @@ def first_drill(tmp, boom="L"):
     return acts[(acts["boom"] == boom) & (acts["kind"] == "drill")].iloc[0]
 
 
+@pytest.mark.slow
 def test_rows_retimed_at_planned_times_are_the_planned_file(planned):
     """The realised-trajectory writer, given the planned times, gives back the planned trajectory file."""
     from pipeline.execution.actions import actions_from_table, read_actions
@@ -68,6 +69,7 @@ def test_rows_retimed_at_planned_times_are_the_planned_file(planned):
     np.testing.assert_array_equal(again[joints].to_numpy(), traj[joints].to_numpy())
 
 
+@pytest.mark.slow
 def test_executed_draw_is_checked_and_reports_what_ran_long(planned, tmp_path):
     out = run(planned, "execute.draw=3", folder=tmp_path)
     assert out["status"] == "complete" and out["holes_left"] == []
@@ -90,6 +92,7 @@ def test_executed_draw_is_checked_and_reports_what_ran_long(planned, tmp_path):
         pd.read_csv(tmp_path / "small_executed_trajectory.csv")["t"].max())
 
 
+@pytest.mark.slow
 def test_interrupted_hole_is_left_and_the_rest_handed_on(planned, tmp_path):
     tmp, _ = planned
     d = first_drill(tmp)
@@ -121,6 +124,7 @@ def test_interrupted_hole_is_left_and_the_rest_handed_on(planned, tmp_path):
     pd.testing.assert_frame_equal(early(traj), early(plan_traj), check_dtype=False)
 
 
+@pytest.mark.slow
 def test_interrupted_round_goes_on_without_replanning(planned, tmp_path):
     tmp, _ = planned
     d = first_drill(tmp, "R")
@@ -132,6 +136,7 @@ def test_interrupted_round_goes_on_without_replanning(planned, tmp_path):
     assert (table["status"] == "ok").sum() == len(table) - 1
 
 
+@pytest.mark.slow
 def test_bad_settings_and_inputs_are_named(planned, tmp_path):
     tmp, _ = planned
     d = first_drill(tmp)
