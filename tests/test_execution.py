@@ -155,6 +155,32 @@ def test_sweep_conflicts_agree_with_a_dense_brute_force(round_, twin):
     assert seen == {True, False} and checked >= 80  # both answers seen, every pair with a drill compared
 
 
+def test_swept_pairs_known_from_an_earlier_round_give_the_same_conflicts(round_):
+    """The oracle keeps each measured pair of sweeps (a round handed on shares most of its actions with
+    the planned one): looked up, they give exactly what measuring them again gives, and cost nothing."""
+    inst, oracle, tl, _ = round_
+    acts = actions_of(inst, tl)
+    saved = dict(oracle.sweep_pairs)
+    try:
+        oracle.sweep_pairs.clear()
+        fresh = conflicts(acts, oracle)
+        assert fresh.evaluations > 0 and len(oracle.sweep_pairs) == len(fresh.pairs)
+        again = conflicts(acts, oracle)
+        assert again.evaluations == 0
+        np.testing.assert_array_equal(again.pairs, fresh.pairs)
+        np.testing.assert_array_equal(again.least, fresh.least)
+        np.testing.assert_array_equal(again.conflict, fresh.conflict)
+        # a pair's result is keyed by what fixes its sweeps: a wrong cached value would be used, so
+        # planting one shows the lookup is real (and why the move file is refused on other settings)
+        key = next(iter(oracle.sweep_pairs))
+        oracle.sweep_pairs[key] = (-1.0, -1.0)
+        planted = conflicts(acts, oracle)
+        assert planted.conflict.sum() >= fresh.conflict.sum() and (planted.least == -1.0).sum() == 1
+    finally:
+        oracle.sweep_pairs.clear()
+        oracle.sweep_pairs.update(saved)
+
+
 # ---------------------------------------------------------------- interlocks and the executor
 def test_interlocks_order_the_middle_holes_and_the_nominal_round_is_clear(round_):
     inst, oracle, tl, rr = round_

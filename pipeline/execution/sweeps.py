@@ -198,9 +198,21 @@ def _level(sa, ga, pi, sb, gb, pj, stride: int, d_boom: float, margin: float):
     return least, half, evaluations
 
 
+def _keys(acts: Actions, oracle, ids: np.ndarray) -> list[tuple]:
+    """What fixes an action's sweep: boom, kind, nodes, and whether its move is a detour."""
+    out = []
+    for k in ids:  # one tuple per action
+        b, u, v, drill = int(acts.boom[k]), int(acts.src[k]), int(acts.dst[k]), bool(acts.is_drill[k])
+        out.append((b, drill, u, v, (not drill) and oracle.detour(b, u, v) is not None))
+    return out
+
+
 def conflicts(acts: Actions, oracle, strides=STRIDES) -> Conflicts:
-    """Every pair of actions of two different booms that may conflict (module docstring)."""
+    """Every pair of actions of two different booms that may conflict (module docstring). A pair whose
+    two sweeps were measured before (``oracle.sweep_pairs``: the same actions of an earlier round, e.g.
+    the planned round of one handed on) takes that result; new results are added there."""
     rig, margin = oracle.rig, float(oracle.margin)
+    known = oracle.sweep_pairs
     sweeps = {b: sweep(acts, oracle, b) for b in sorted(set(acts.boom.tolist()))}
     out, evaluations = [], 0
     booms = sorted(sweeps)
@@ -215,7 +227,14 @@ def conflicts(acts: Actions, oracle, strides=STRIDES) -> Conflicts:
             pi, pj = torch.nonzero(gap < thr, as_tuple=True)
             least = torch.full((len(pi),), np.inf, dtype=D)
             lower = torch.full((len(pi),), np.inf, dtype=D)
-            open_ = torch.arange(len(pi))
+            ka, kb = _keys(acts, oracle, ids_a), _keys(acts, oracle, ids_b)
+            keys = [(ka[i], kb[j]) for i, j in zip(pi.tolist(), pj.tolist(), strict=True)]
+            hit = np.array([k in known for k in keys], bool)
+            if hit.any():
+                got = np.array([known[k] for k, h in zip(keys, hit, strict=True) if h], float).reshape(-1, 2)
+                least[torch.as_tensor(hit)] = torch.as_tensor(got[:, 0], dtype=D)
+                lower[torch.as_tensor(hit)] = torch.as_tensor(got[:, 1], dtype=D)
+            open_ = torch.as_tensor(np.flatnonzero(~hit))
             for level, stride in enumerate(strides):
                 if not len(open_):
                     break
@@ -227,6 +246,8 @@ def conflicts(acts: Actions, oracle, strides=STRIDES) -> Conflicts:
                 final = level == len(strides) - 1
                 decided = torch.ones_like(lst, dtype=torch.bool) if final else (lst < margin) | (lst - half >= margin)
                 open_ = open_[~decided]
+            for n in np.flatnonzero(~hit):  # measured now: kept for the next round of the same actions
+                known[keys[n]] = (float(least[n]), float(lower[n]))
             out.append((np.stack([ids_a[pi.numpy()], ids_b[pj.numpy()]], 1), least.numpy(), lower.numpy()))
     pairs = np.concatenate([o[0] for o in out]) if out else np.zeros((0, 2), int)
     least = np.concatenate([o[1] for o in out]) if out else np.zeros(0)

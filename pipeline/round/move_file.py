@@ -8,9 +8,12 @@ reads it back: only moves never looked at are certified or planned again.
 
 The file is a numpy ``.npz`` read with ``allow_pickle=False`` (no code runs on load): each boom's
 joint solutions (the book is valid only for them), the status and certified floors of every move,
-the detours' waypoints and the reasons, and the settings the certificates were made under (sample
-spacing, refinements, margins, detour settings). :func:`load_book` refuses, with the reason, a file
-whose joints or settings differ from the caller's: a certificate for another margin is no certificate.
+the detours' waypoints and the reasons, the certified sweep results of the round's action pairs (the
+interlocks' conflicts, :mod:`pipeline.execution.sweeps`: the hand-on's new plan shares most of its
+actions with the planned round), and the settings all of it was made under (sample spacing,
+refinements, margins, the oracle's margin and d_boom, detour settings). :func:`load_book` refuses,
+with the reason, a file whose joints or settings differ from the caller's: a certificate for another
+margin is no certificate.
 """
 
 from __future__ import annotations
@@ -31,7 +34,10 @@ VERSION = 1
 
 def _meta(book: MoveBook) -> dict:
     p = book.planner
+    rig = book.oracle.rig
+    d_boom = [float(rig.pair(a, b).d_boom) for a in range(len(rig)) for b in range(a + 1, len(rig))]
     return {"version": VERSION, "resolution": book.resolution, "refinements": book.refinements,
+            "oracle": {"sample_m": float(book.oracle.sample_m), "margin": float(book.oracle.margin), "d_boom": d_boom},
             "tolerance": book.tolerance, "margin": {k: float(v) for k, v in book.margin.items()},
             "detours": bool(book.detours),
             "planner": {"iterations": p.iterations, "simplify_steps": p.simplify_steps, "seed": p.seed,
@@ -50,6 +56,9 @@ def save_book(book: MoveBook, path) -> None:
             points.append(w)
     rk = sorted(book.reason)
     n = joints.shape[-1]
+    pk = sorted(book.oracle.sweep_pairs)  # certified sweep results of action pairs (execution/sweeps.py)
+    pair_key = np.asarray([[int(x) for x in ka + kb] for ka, kb in pk], np.int64).reshape(-1, 10)
+    pair_val = np.asarray([book.oracle.sweep_pairs[k] for k in pk], float).reshape(-1, 2)
     with open(path, "wb") as f:
         np.savez_compressed(
             f, meta=np.array(json.dumps(_meta(book))), joints=joints, status=book.status,
@@ -59,7 +68,8 @@ def save_book(book: MoveBook, path) -> None:
             duration_key=np.asarray(sorted(book.durations), np.int64).reshape(-1, 3),
             duration_s=np.asarray([book.durations[k] for k in sorted(book.durations)], float),
             reason_key=np.asarray(rk, np.int64).reshape(-1, 3), reason_text=np.asarray([book.reason[k] for k in rk],
-                                                                                      dtype=str))
+                                                                                      dtype=str),
+            pair_key=pair_key, pair_value=pair_val)
 
 
 def load_book(path, oracle, n_holes: int, settings: RoundSettings) -> tuple[MoveBook | None, str]:
@@ -96,6 +106,12 @@ def load_book(path, oracle, n_holes: int, settings: RoundSettings) -> tuple[Move
         paths[(int(b), int(u), int(v))] = p
     for (b, u, v), p in paths.items():
         oracle.set_detour(b, u, v, p)
+    for key, (least, lower) in zip(data.get("pair_key", np.zeros((0, 10), np.int64)),
+                                   data.get("pair_value", np.zeros((0, 2))), strict=True):
+        k = [int(x) for x in key]
+        oracle.sweep_pairs[((k[0], bool(k[1]), k[2], k[3], bool(k[4])), (k[5], bool(k[6]), k[7], k[8], bool(k[9])))] = (
+            float(least), float(lower))
     book.reason = {tuple(int(x) for x in k): str(t) for k, t in zip(data["reason_key"], data["reason_text"],
                                                                      strict=True)}
-    return book, f"{path}: {len(data['detour_key'])} detours and {int((book.status > 0).sum())} moves known"
+    return book, (f"{path}: {len(data['detour_key'])} detours, {int((book.status > 0).sum())} moves and "
+                  f"{len(oracle.sweep_pairs)} swept action pairs known")
