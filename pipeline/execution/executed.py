@@ -54,14 +54,6 @@ def executed_round_table(acts: Actions, start: np.ndarray, end: np.ndarray, rows
     return out
 
 
-def standing_by_boom(acts: Actions, start: np.ndarray, end: np.ndarray) -> dict[str, float]:
-    """Seconds each boom stood between its actions (at interlocks, or for the hand-on)."""
-    prev = acts.previous
-    ready = np.where(prev >= 0, end[np.clip(prev, 0, None)], 0.0)
-    wait = start - ready
-    return {name: float(wait[acts.boom == b].sum()) for b, name in enumerate(acts.booms)}
-
-
 def long_holes(acts: Actions, planned_s: np.ndarray, start: np.ndarray, end: np.ndarray,
                skip: set[int]) -> list[dict]:
     """The drills that took longer than planned, longest over-run first (at most ``LONG_SHOWN``)."""

@@ -130,7 +130,7 @@ def hand_on(inst, oracle, settings, st: Standing, say=None, book=None, planned_o
     the new plan beside the sweeps, and the first candidate tried when the new plan cannot be made
     robust (then the sweeps)."""
     from pipeline.execution.interlocks import robust_round
-    from pipeline.round.plan import SEEDS, plan_round, seed_routes, timed_routes
+    from pipeline.round.plan import SEEDS, first_where_standing, plan_round, seed_routes, timed_routes
 
     t0 = time.perf_counter()
     sub, dropped = handed_on_instance(inst, st)
@@ -143,6 +143,9 @@ def hand_on(inst, oracle, settings, st: Standing, say=None, book=None, planned_o
     fallbacks = ([("planned order", planned_order)] if planned_order is not None else []) + [
         (kind, seed_routes(sub_inst, kind, settings.sweep_band_m)) for kind in SEEDS]
     for kind, routes in fallbacks if rr.problem is not None else ():
+        routes = first_where_standing(sub_inst, routes)
+        if routes == rp.timeline.routes:  # the plan already found not robust (a seed that won)
+            continue
         tl = timed_routes(sub_inst, oracle, settings, rp.book, routes)
         if tl.conflicts_left:
             continue
@@ -192,6 +195,9 @@ def splice(planned: Actions, planned_rows: list[Rows], planned_edges: np.ndarray
     old_of: dict[int, int] = {}
     first_new: list[int] = []
     last_old: list[int] = []
+    # each boom's first new action when it goes nowhere in no time (it stands at the hole it drills first)
+    skipped = {int(k) for k in np.flatnonzero(new.index == 0)
+               if not new.is_drill[k] and new.src[k] == new.dst[k] and new.t_end[k] - new.t_start[k] <= 0}
     n = 0
     for b in range(B):
         i = 0
@@ -206,8 +212,7 @@ def splice(planned: Actions, planned_rows: list[Rows], planned_edges: np.ndarray
             n, i = n + 1, i + 1
         last_old.append(n - 1 if len(old) else -1)
         mine = np.flatnonzero(new.boom == b)
-        skip = [k for k in mine[:1] if not new.is_drill[k] and new.src[k] == new.dst[k]
-                and new.t_end[k] - new.t_start[k] <= 0]
+        skip = [int(k) for k in mine[:1] if int(k) in skipped]
         shift = None
         first_new.append(n if len(mine) > len(skip) else -1)
         for k in mine:
@@ -234,8 +239,6 @@ def splice(planned: Actions, planned_rows: list[Rows], planned_edges: np.ndarray
     for u, v in np.asarray(planned_edges, int).reshape(-1, 2):
         if int(u) in pre and int(v) in pre:
             edges.append((old_of[int(u)], old_of[int(v)]))
-    skipped = {int(k) for k in np.flatnonzero(new.index == 0)
-               if not new.is_drill[k] and new.src[k] == new.dst[k] and new.t_end[k] - new.t_start[k] <= 0}
     succ: dict[int, list[int]] = {}
     for u, v in np.asarray(new_edges, int).reshape(-1, 2):
         succ.setdefault(int(u), []).append(int(v))

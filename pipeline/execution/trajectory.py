@@ -63,7 +63,7 @@ def action_rows(traj: pd.DataFrame, acts: Actions, joints: list[str], source: st
             t0, t1 = float(acts.t_start[k]), float(acts.t_end[k])
             lo = int(np.searchsorted(t, t0 - TIME_TOL, side="left"))
             hi = int(np.searchsorted(t, t1 - TIME_TOL, side="left"))  # rows starting before the end
-            end = int(min(np.searchsorted(t, t1 - TIME_TOL, side="left"), len(t) - 1))
+            end = min(hi, len(t) - 1)  # the row at the action's end: its joints there
             name = acts.name(k)
             if acts.is_drill[k]:
                 h = acts.hole_ids[acts.hole[k]]
