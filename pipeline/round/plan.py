@@ -6,8 +6,9 @@
 1. :func:`pipeline.round.routing.route` allocates and orders the holes (makespan, no conflicts known);
 2. every candidate's moves are looked at before it is timed (:class:`pipeline.round.detours.MoveBook`:
    a move that breaks self or tunnel clearance is re-planned, its detour's duration and motion used);
-3. :func:`pipeline.round.timeline.resolve` times the routes and inserts waits until no boom-boom
-   conflict is left (or falls back to one boom at a time, checked);
+3. :func:`pipeline.round.waits.place_waits` times the routes with the waits that keep every boom-boom
+   distance (``round.waits``: ``exact`` by CP-SAT, optimal for the routes; ``greedy``, the repair
+   rule of :mod:`pipeline.round.timeline`, which falls back to one boom at a time; or the better);
 4. every pair of holes (i on boom a, j on boom b: where each stood, or the hole it was moving to)
    whose conflict needed a wait is fed back (:mod:`pipeline.round.routing`: not drilled at the same
    time while on a and b; a soft same-boom cost where one boom can drill both), and the routing
@@ -38,9 +39,10 @@ from pipeline.round.bounds import lower_bound
 from pipeline.round.detours import PLANNED, RETRACT, MoveBook
 from pipeline.round.instance import Instance, RoundSettings
 from pipeline.round.oracle import ConflictOracle, KinematicOracle
-from pipeline.round.routing import route
+from pipeline.round.routing import RoutingFailed, route
 from pipeline.round.seeds import sweep_routes
-from pipeline.round.timeline import Timeline, resolve
+from pipeline.round.timeline import Timeline
+from pipeline.round.waits import place_waits
 
 
 @dataclass
@@ -79,8 +81,7 @@ class _Timer:
     def __call__(self, routes: list[list[int]]) -> Timeline:
         if self.book is not None:
             self.inst = self.book.ensure(self.inst, routes)
-        return resolve(self.inst, routes, self.oracle, self.settings.max_repairs,
-                       escalations=self.settings.escalations)
+        return place_waits(self.inst, routes, self.oracle, self.settings)
 
 
 def make_book(inst: Instance, oracle, settings: RoundSettings) -> MoveBook | None:
@@ -207,8 +208,12 @@ def plan_round(inst: Instance, oracle: ConflictOracle, settings: RoundSettings,
             break
         penalised.update(new)
         apart |= new_apart
-        r = route(costed(), settings, same_boom=penalised, apart=sorted(apart), initial=best.routes,
-                  time_limit_s=limit())
+        try:
+            r = route(costed(), settings, same_boom=penalised, apart=sorted(apart), initial=best.routes,
+                      time_limit_s=limit())
+        except RoutingFailed as e:  # the fed-back pairs left the first-solution heuristic no routes: keep the best
+            stopped = f"the routing found no routes with the {len(apart)} pairs fed back ({e})"
+            break
         rounds += 1
     if best is None:  # cannot happen: without a candidate the routing always runs
         raise RuntimeError("round: no candidate timeline")

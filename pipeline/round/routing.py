@@ -164,8 +164,8 @@ def route(inst: Instance, settings: RoundSettings, same_boom: Mapping[tuple[int,
     if solution is None:
         solution = model.SolveWithParameters(params)
     if solution is None:
-        raise ConfigError(f"round: OR-Tools found no routes ({_status(model)}) for {n} holes and {B} booms; "
-                          "check round.precedence against the reach table")
+        raise RoutingFailed(f"round: OR-Tools found no routes ({_status(model)}) for {n} holes and {B} booms; "
+                            "check round.precedence against the reach table")
     routes = []
     for b in range(B):
         r, idx = [], model.Start(b)
@@ -176,6 +176,11 @@ def route(inst: Instance, settings: RoundSettings, same_boom: Mapping[tuple[int,
             idx = solution.Value(model.NextVar(idx))
         routes.append(r)
     return Routes(routes, left_out, int(solution.ObjectiveValue()), _status(model))
+
+
+class RoutingFailed(ConfigError):
+    """OR-Tools found no routes: for the first solve, a setting to fix (precedence against reach); for
+    a re-optimisation with conflicts fed back, the planner keeps its best round."""
 
 
 def _status(model) -> str:

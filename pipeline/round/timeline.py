@@ -67,6 +67,7 @@ class Timeline:
     conflicts_left: int = 0
     sequential: bool = False
     min_clearance: float = math.inf  # smallest sampled boom-boom clearance (m, less d_boom)
+    waits: dict = field(default_factory=dict)  # how the waits were placed (method, and the exact solver's certificate)
 
     @property
     def makespan(self) -> float:
@@ -189,6 +190,38 @@ def scan(tl: Timeline, oracle, since: float = -math.inf, full: bool = False, chu
                         best = {"t": float(first[m]), "a": a, "b": b, "seg_a": {k: v[m] for k, v in sa.items()},
                                 "seg_b": {k: v[m] for k, v in sb.items()}}
     return (best, n_bad, least) if full else best
+
+
+@dataclass(frozen=True)
+class Segment:
+    """Segment ``k`` of one boom's timeline: a move (``move``: its move k) or a standing (move k leads
+    into it; -1 is the first standing, at the boom's start node; ``len(route)`` the last, at park)."""
+
+    boom: int
+    move: bool
+    k: int
+
+
+def conflicting_segments(tl: Timeline, oracle) -> tuple[list[tuple[Segment, Segment]], float]:
+    """Every pair of segments of two booms that run at the same time and conflict (one oracle batch
+    per boom pair; the lower boom first), and the smallest clearance sampled (as :func:`scan`'s)."""
+    B = len(tl.routes)
+    segs = [segments(tl, b) for b in range(B)]
+    out, least = [], math.inf
+    for a in range(B):
+        for b in range(a + 1, B):
+            i, j, lo, hi = _overlaps(segs[a], segs[b], -math.inf)
+            if not len(i):
+                continue
+            first, low = oracle.check(a, {k: v[i] for k, v in segs[a].items()}, b,
+                                      {k: v[j] for k, v in segs[b].items()}, lo, hi)
+            least = min(least, float(np.min(low)))
+            bad = np.isfinite(first)
+            sa, sb = segs[a], segs[b]
+            out += [(Segment(a, bool(sa["u"][x] != sa["v"][x]), int(sa["k"][x])),
+                     Segment(b, bool(sb["u"][y] != sb["v"][y]), int(sb["k"][y])))
+                    for x, y in zip(i[bad], j[bad], strict=True)]
+    return out, least
 
 
 def _clear(oracle, a: int, seg_a: dict, b: int, seg_b: dict, lo: float, hi: float) -> bool:
