@@ -1,0 +1,132 @@
+"""The joint CP-SAT model against today's planner, at equal wall time (issue 28, "Measure, then choose").
+
+Per face: the reach table and today's planner as the stage runs it
+(:func:`pipeline.round.schedule.schedule_round`, counts: its planning wall time is T); then the joint
+model (:mod:`pipeline.round.joint_model`) on the same reach table with straight move times and the
+oracle's standing conflicts, hinted with the better sweep, given ``factor * T`` seconds of wall time
+(model building included); its routes are timed by the planner's own timeline with the planner's move
+book (:func:`pipeline.round.plan.timed_routes`: every move certified, a detour where the straight line
+breaks self or tunnel clearance, waits for every boom-boom conflict), and that makespan is compared.
+docs/benchmarks.md, "Joint CP-SAT model against the routing (issue 28)".
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from pipeline.core.errors import ConfigError
+from pipeline.data.holes import joint_box
+from pipeline.plans.demo_face import demo_face
+from pipeline.plans.faces import generated_face
+from pipeline.plans.reach import reach_table, rig_solvers
+from pipeline.round.instance import RoundSettings
+from pipeline.round.joint_model import JointSettings, hint_timeline, joint_round, standing_conflicts
+from pipeline.round.plan import SEEDS, seed_routes, timed_routes
+from pipeline.round.schedule import round_instance, schedule_round
+from pipeline.round.timeline import scan, simulate
+from pipeline.solvers.hybrid import HybridSettings
+
+
+def joint_vs_routing(faces: Sequence, case, hybrid: HybridSettings, settings: RoundSettings, first_start: Callable,
+                     factors: Sequence[float] = (1.0, 2.0), seed: int = 0, box: dict | None = None,
+                     random_seed: int = 0, say=print, done: Callable | None = None) -> pd.DataFrame:
+    """One row per (face, wall-time factor); ``case``: a :class:`pipeline.round.benchmark.BenchRig`;
+    ``faces``: "demo" or hole counts (:func:`pipeline.plans.faces.generated_face` with ``seed``);
+    ``done``: called with the table so far after each row (a long run keeps what it measured)."""
+    rig, rows = case.rig, []
+    for face in faces:
+        plan = demo_face(safety=case.safety) if face == "demo" else generated_face(int(face), seed, case.safety)
+        name = f"demo ({len(plan)})" if face == "demo" else f"gen {face} ({len(plan)})"
+        reach = reach_table(plan, rig, rig_solvers(rig, first_start, hybrid, joint_box(rig.booms[0].boom, box)),
+                            "hybrid")
+        res, used = planner(rig, plan, reach, case.motions, settings, say)
+        s, T = res.summary, res.timings["planning_s"]
+        say(f"{name} x {rig.name}: planner {s['makespan_s']:.1f} s (bound {s['lower_bound_s']:.1f} s) in {T:.1f} s")
+        straight, _, _ = round_instance(rig, plan, reach, case.motions, settings)  # straight moves, as the model sees
+        conflicts = standing_conflicts(res.oracle, straight.reach)
+        hints = {kind: hint_timeline(straight, seed_routes(straight, kind, settings.sweep_band_m), conflicts)
+                 for kind in SEEDS}
+        hint = min(hints, key=lambda k: hints[k].makespan)  # the better sweep in the model's own terms
+        base = {"face": name, "rig": rig.name, "holes": len(plan), "drilled": s["holes_drilled"],
+                "planner_s": s["makespan_s"], "bound_s": s["lower_bound_s"], "planner_ratio": s["makespan_over_bound"],
+                "planning_s": T, "planner_seed": s.get("seed"), "kept_seed": s.get("kept_seed"),
+                "hint": hint, "hint_model_s": hints[hint].makespan, "reopt_rounds": used.reopt_rounds,
+                "stopped": s.get("stopped")}
+        for factor in factors:
+            started = time.perf_counter()
+            jr = joint_round(straight, conflicts, JointSettings(max_deterministic_time=None,
+                                                                max_time_in_seconds=factor * T,
+                                                                random_seed=random_seed), hints[hint].routes)
+            solve_s = time.perf_counter() - started
+            row = {**base, "factor": factor, "cpsat_s": jr.makespan_s, "cpsat_bound_s": jr.bound_s,
+                   "status": jr.status, "cpsat_wall_s": solve_s, "deterministic_time": jr.deterministic_time,
+                   "pairs": jr.pairs, "arcs": jr.arcs}
+            if jr.routes is not None:
+                t1 = time.perf_counter()
+                tl = timed_routes(res.inst, res.oracle, settings, res.plan.book, jr.routes)
+                row.update({"timed_s": tl.makespan, "timed_ratio": tl.makespan / s["lower_bound_s"],
+                            "waits": len(tl.repairs), "sequential": tl.sequential,
+                            "conflicts_left": tl.conflicts_left, "timing_s": time.perf_counter() - t1})
+                own = own_timing(res.plan.book.apply(res.inst) if res.plan.book is not None else res.inst,
+                                 straight, jr, res.oracle)
+                row.update({"own_timing_s": own.makespan, "own_timing_conflicts": own.conflicts_left})
+            rows.append(row)
+            if done is not None:
+                done(pd.DataFrame(rows))
+            say(f"{name} x {rig.name}, CP-SAT {factor:g} T: objective {jr.makespan_s} s, bound {jr.bound_s:.1f} s, "
+                f"{jr.status}, timed {row.get('timed_s', float('nan')):.1f} s in {solve_s:.1f} s")
+    return pd.DataFrame(rows)
+
+
+def planner(rig, plan, reach, motions, settings: RoundSettings, say):
+    """Today's planner as the stage runs it, and the settings it ran with. At this commit a re-routing
+    solve with the pairs fed back can find no routes (OR-Tools' first-solution heuristic fails: a
+    ConfigError, seen on the demo face with ``schedule.network=null``); the planner is then run again
+    stopping before that solve (``reopt_rounds`` = the last round timed), the round it had then."""
+    rounds = []
+
+    def log(msg):
+        if msg.startswith("round ") and ":" in msg and msg.split(":")[0].split()[-1].isdigit():
+            rounds.append(int(msg.split(":")[0].split()[-1]))
+        say(msg)
+
+    try:
+        return schedule_round(rig, plan, reach, motions, settings, True, True, log), settings
+    except ConfigError as e:
+        if "OR-Tools found no routes" not in str(e) or not rounds:
+            raise
+        retry = dataclasses.replace(settings, reopt_rounds=max(rounds))
+        say(f"planner: {e}; planned again with reopt_rounds = {retry.reopt_rounds}")
+        return schedule_round(rig, plan, reach, motions, retry, True, True, say), retry
+
+
+def own_timing(inst, straight, jr, oracle):
+    """The model's own timing of its routes, checked: every move starts no earlier than the model has it
+    (its waits kept; a detour longer than the straight move pushes what follows), then every pair of
+    segments scanned by the oracle; ``conflicts_left`` counts the conflicts no wait resolved (during
+    moves: the model knows standing conflicts only). A diagnostic, not a round."""
+    nb = []
+    for b, r in enumerate(jr.routes):
+        first = [jr.start_s[r[0]] - straight.move_s[b, straight.starts[b], r[0]]] if r else []
+        nb.append(np.array([*first, *jr.leave_s[r]] if r else [0.0]))
+    tl = simulate(inst, jr.routes, nb)
+    _, tl.conflicts_left, tl.min_clearance = scan(tl, oracle, full=True)
+    return tl
+
+
+def markdown(table: pd.DataFrame) -> str:
+    cols = ["face", "holes", "planner_s", "bound_s", "planner_ratio", "planning_s", "factor", "cpsat_s",
+            "cpsat_bound_s", "status", "timed_s", "timed_ratio", "cpsat_wall_s", "deterministic_time", "waits",
+            "sequential"]
+    out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for _, r in table.iterrows():
+        cells = [f"{r[c]:.3f}" if c.endswith("ratio") and pd.notna(r.get(c)) else
+                 f"{r[c]:.1f}" if isinstance(r.get(c), float) and pd.notna(r.get(c)) else str(r.get(c, ""))
+                 for c in cols]
+        out.append("| " + " | ".join(cells) + " |")
+    return "\n".join(out) + "\n"
