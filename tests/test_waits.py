@@ -26,7 +26,7 @@ def brute_force(inst, routes, bad):
     or either end of a move), each schedule the earliest one by longest paths (independent code)."""
     H = inst.n_holes
     segs = []  # per boom: (kind, k, nodes)
-    for b, r in enumerate(routes):
+    for r in routes:
         nodes = [H, *r, H]
         s = [("stand", -1, {H})]
         for k in range(len(r) + 1):
@@ -46,19 +46,9 @@ def brute_force(inst, routes, bad):
                     ready = starts[b][k - 1] + inst.move_s[b, nodes[k - 1], nodes[k]] + inst.drill_s[r[k - 1]]
                     starts[b][k] = max(starts[b][k], ready)
 
-            def span(b, seg):
-                kind, k, _ = seg
-                nodes = segs[b][0]
-                mv = lambda m: inst.move_s[b, nodes[m], nodes[m + 1]]  # noqa: E731
-                if kind == "move":
-                    return starts[b][k], starts[b][k] + mv(k)
-                t0 = 0.0 if k < 0 else starts[b][k] + mv(k)
-                t1 = math.inf if k == len(routes[b]) else starts[b][k + 1]
-                return t0, t1
-
             for (p, q), o in zip(pairs, order, strict=True):
                 first, fb, then, tb = (p, 0, q, 1) if o == 0 else (q, 1, p, 0)
-                end = span(fb, first)[1]
+                end = _span(inst, fb, segs[fb][0], starts[fb], first)[1]
                 kind, k, _ = then
                 if math.isinf(end):
                     starts[tb][:] = math.inf
@@ -80,6 +70,16 @@ def brute_force(inst, routes, bad):
         ends = [starts[b][-1] + inst.move_s[b, segs[b][0][-2], H] for b in range(2)]
         best = min(best, max(ends))
     return best, len(pairs)
+
+
+def _span(inst, b, nodes, starts, seg):
+    """(start, end) of one segment of boom b, whose route visits ``nodes``, with move starts ``starts``."""
+    kind, k, _ = seg
+    if kind == "move":
+        return starts[k], starts[k] + inst.move_s[b, nodes[k], nodes[k + 1]]
+    t0 = 0.0 if k < 0 else starts[k] + inst.move_s[b, nodes[k], nodes[k + 1]]
+    t1 = math.inf if k == len(nodes) - 2 else starts[k + 1]
+    return t0, t1
 
 
 @pytest.mark.parametrize("seed", range(2))  # one, then two conflicting hole pairs

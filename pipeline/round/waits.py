@@ -113,10 +113,14 @@ def standing_conflicts(inst: Instance, chains: list[_Chain], oracle) -> list[tup
             na = np.array([chains[a].node(s) for s in sa])[ia]
             nb = np.array([chains[b].node(s) for s in sb])[ib]
             one = np.ones(len(ia))
-            seg = lambda n: {"t0": 0 * one, "t1": one, "u": n, "v": n, "k": 0 * n, "p": n}  # noqa: E731
-            first, _ = oracle.check(a, seg(na), b, seg(nb), 0 * one, one)
+            first, _ = oracle.check(a, _standing_at(na, one), b, _standing_at(nb, one), 0 * one, one)
             out += [(sa[i], sb[j]) for i, j in zip(ia[np.isfinite(first)], ib[np.isfinite(first)], strict=True)]
     return out
+
+
+def _standing_at(nodes: np.ndarray, one: np.ndarray) -> dict:
+    """Segments standing at ``nodes`` over [0, 1] (the oracle's batch form)."""
+    return {"t0": 0 * one, "t1": one, "u": nodes, "v": nodes, "k": 0 * nodes, "p": nodes}
 
 
 @dataclass
