@@ -6,9 +6,13 @@ and end at their own park, reach is the set of allowed vehicles per node, drilli
 and the makespan is the global span of a time dimension. OR-Tools models exactly that, per-vehicle
 transit matrices included (each boom has its own move times), and its guided local search finds
 near-optimal routes for 150 nodes in a few hundred solutions (seconds); it is well kept, on PyPI, and needs no licence.
-CP-SAT would prove optimality on small faces (about 15 holes), but a round of 50-150 holes with
-per-boom sequence-dependent times is far beyond an exact model in 60 s on 2 cores, and its
-answers would still need the same conflict loop; we leave it out (a possible check for tiny faces).
+CP-SAT, measured (issue 28, docs/benchmarks.md "Joint CP-SAT model against the routing";
+:mod:`pipeline.round.joint_model`): one model of allocation, order and timing with the standing
+conflicts, given the planner's wall time on one core, proves no optimum on the demo face or gen 50
+``twin`` (FEASIBLE, 2 % from its own bound), finds routes 2-4 % shorter than the planner's in its own
+terms, but the timeline (move conflicts, moves blocked at park) falls those routes back to one boom
+at a time (about twice the makespan); the routing stays the planner, the model is a bound and a
+measurement.
 
 **The model.** Nodes are the holes some boom can drill (a hole no boom can drill is left out and
 reported: OR-Tools reads an empty allowed-vehicle set as "every vehicle"), plus one park node per
