@@ -12,14 +12,12 @@ docs/benchmarks.md, "Joint CP-SAT model against the routing (issue 28)".
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
 import pandas as pd
 
-from pipeline.core.errors import ConfigError
 from pipeline.data.holes import joint_box
 from pipeline.plans.demo_face import demo_face
 from pipeline.plans.faces import generated_face
@@ -44,7 +42,7 @@ def joint_vs_routing(faces: Sequence, case, hybrid: HybridSettings, settings: Ro
         name = f"demo ({len(plan)})" if face == "demo" else f"gen {face} ({len(plan)})"
         reach = reach_table(plan, rig, rig_solvers(rig, first_start, hybrid, joint_box(rig.booms[0].boom, box)),
                             "hybrid")
-        res, used = planner(rig, plan, reach, case.motions, settings, say)
+        res = schedule_round(rig, plan, reach, case.motions, settings, True, True, say)
         s, T = res.summary, res.timings["planning_s"]
         say(f"{name} x {rig.name}: planner {s['makespan_s']:.1f} s (bound {s['lower_bound_s']:.1f} s) in {T:.1f} s")
         straight, _, _ = round_instance(rig, plan, reach, case.motions, settings)  # straight moves, as the model sees
@@ -55,7 +53,7 @@ def joint_vs_routing(faces: Sequence, case, hybrid: HybridSettings, settings: Ro
         base = {"face": name, "rig": rig.name, "holes": len(plan), "drilled": s["holes_drilled"],
                 "planner_s": s["makespan_s"], "bound_s": s["lower_bound_s"], "planner_ratio": s["makespan_over_bound"],
                 "planning_s": T, "planner_seed": s.get("seed"), "kept_seed": s.get("kept_seed"),
-                "hint": hint, "hint_model_s": hints[hint].makespan, "reopt_rounds": used.reopt_rounds,
+                "hint": hint, "hint_model_s": hints[hint].makespan, "reopt_rounds": settings.reopt_rounds,
                 "stopped": s.get("stopped")}
         for factor in factors:
             started = time.perf_counter()
@@ -81,28 +79,6 @@ def joint_vs_routing(faces: Sequence, case, hybrid: HybridSettings, settings: Ro
             say(f"{name} x {rig.name}, CP-SAT {factor:g} T: objective {jr.makespan_s} s, bound {jr.bound_s:.1f} s, "
                 f"{jr.status}, timed {row.get('timed_s', float('nan')):.1f} s in {solve_s:.1f} s")
     return pd.DataFrame(rows)
-
-
-def planner(rig, plan, reach, motions, settings: RoundSettings, say):
-    """Today's planner as the stage runs it, and the settings it ran with. At this commit a re-routing
-    solve with the pairs fed back can find no routes (OR-Tools' first-solution heuristic fails: a
-    ConfigError, seen on the demo face with ``schedule.network=null``); the planner is then run again
-    stopping before that solve (``reopt_rounds`` = the last round timed), the round it had then."""
-    rounds = []
-
-    def log(msg):
-        if msg.startswith("round ") and ":" in msg and msg.split(":")[0].split()[-1].isdigit():
-            rounds.append(int(msg.split(":")[0].split()[-1]))
-        say(msg)
-
-    try:
-        return schedule_round(rig, plan, reach, motions, settings, True, True, log), settings
-    except ConfigError as e:
-        if "OR-Tools found no routes" not in str(e) or not rounds:
-            raise
-        retry = dataclasses.replace(settings, reopt_rounds=max(rounds))
-        say(f"planner: {e}; planned again with reopt_rounds = {retry.reopt_rounds}")
-        return schedule_round(rig, plan, reach, motions, retry, True, True, say), retry
 
 
 def own_timing(inst, straight, jr, oracle):

@@ -102,7 +102,7 @@ def _expr(chain: _Chain, point):
     return off if var is None else chain.S[var] + off
 
 
-def standing_conflicts(inst: Instance, chains: list[_Chain], oracle) -> list[tuple[Segment, Segment]]:
+def _standing_pairs(chains: list[_Chain], oracle) -> list[tuple[Segment, Segment]]:
     """Every pair of standings of two booms whose nodes conflict (one batch per boom pair)."""
     out = []
     for a in range(len(chains)):
@@ -149,7 +149,7 @@ def exact_waits(inst: Instance, routes: list[list[int]], oracle, deterministic_s
         model = cp_model.CpModel()
         chains = [_Chain(model, inst, b, r, horizon) for b, r in enumerate(routes)]
         if standing is None:
-            standing = standing_conflicts(inst, chains, oracle)
+            standing = _standing_pairs(chains, oracle)
             pairs.update(standing)
         lits = _disjunctions(model, chains, sorted(pairs, key=_key))
         _precedence(model, inst, chains, routes)
@@ -220,15 +220,17 @@ def _disjunctions(model, chains, pairs):
     return out
 
 
+def _precedence_positions(inst: Instance, routes: list[list[int]]):
+    """Per precedence pair (i before j) on the routes: (boom of i, its position, boom of j, its position)."""
+    where = {h: (b, k) for b, r in enumerate(routes) for k, h in enumerate(r)}
+    return [(*where[i], *where[j]) for i, j in inst.precedence if i in where and j in where]
+
+
 def _precedence(model, inst: Instance, chains: list[_Chain], routes: list[list[int]]):
     """Hole i finished before hole j's drilling starts: j's arrival (floor) after i's end (ceil)."""
-    where = {h: (b, k) for b, r in enumerate(routes) for k, h in enumerate(r)}
-    for i, j in inst.precedence:
-        if i not in where or j not in where:
-            continue
-        (a, ki), (b, kj) = where[i], where[j]
+    for a, ki, b, kj in _precedence_positions(inst, routes):
         ca, cb = chains[a], chains[b]
-        model.Add(cb.S[kj] + int(cb.df[kj]) >= ca.S[ki] + int(ca.dc[ki] + ca.drill[ki]))
+        model.Add(cb.S[kj] + int(cb.df[kj]) >= ca.S[ki] + ca.ready(ki))
 
 
 def _edges(chains, lits, solver, inst: Instance, routes):
@@ -250,12 +252,9 @@ def _edges(chains, lits, solver, inst: Instance, routes):
     for c in chains:
         for k in range(c.n):
             add(c, (k, c.ready(k, True)), c, (k + 1, 0.0), None)
-    where = {h: (b, k) for b, r in enumerate(routes) for k, h in enumerate(r)}
-    for i, j in inst.precedence:
-        if i in where and j in where:
-            (a, ki), (b, kj) = where[i], where[j]
-            ca, cb = chains[a], chains[b]
-            add(ca, (ki, ca.ready(ki, True)), cb, (kj, float(cb.mv_s[kj])), None)
+    for a, ki, b, kj in _precedence_positions(inst, routes):
+        ca, cb = chains[a], chains[b]
+        add(ca, (ki, ca.ready(ki, True)), cb, (kj, float(cb.mv_s[kj])), None)
     for p, q, x, p_first in lits:
         first = bool(solver.Value(x)) if x is not None else p_first
         (e, f) = (p, q) if first else (q, p)
