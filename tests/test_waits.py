@@ -128,3 +128,45 @@ def test_greedy_is_the_default_and_unknown_methods_are_refused():
     assert parse_round(load_group_file("round", "default")).waits == "greedy"
     with pytest.raises(ConfigError, match="waits"):
         parse_round({"waits": "fastest"})
+
+
+CHILD = """
+import signal, sys
+sys.path.insert(0, "tests")
+import numpy as np
+from test_round import SetOracle, synthetic
+from pipeline.round.waits import exact_waits
+def stop(*_):
+    print("handler", flush=True)
+    sys.exit(7)
+signal.signal(signal.SIGINT, stop)
+inst = synthetic(H=30, B=2, seed=0)
+g = np.random.default_rng(0)
+oracle = SetOracle({(0, 1): {(int(i), int(j)) for i, j in g.integers(0, 30, (90, 2))}})
+routes = [[h for h in range(30) if inst.reach[0, h] and h % 2 == 0],
+          [h for h in range(30) if inst.reach[1, h] and (h % 2 == 1 or not inst.reach[0, h])]]
+print("solving", flush=True)
+while True:  # CP-SAT solves back to back: the signal lands inside one almost surely
+    exact_waits(inst, routes, oracle, deterministic_s=5.0)
+"""
+
+
+def test_ctrl_c_during_the_exact_waits_reaches_the_callers_handler():
+    """CP-SAT catches SIGINT by default (and the process then dies with 130, past the stage's handler,
+    leaving its MLflow run RUNNING): the waits' solver must leave it to the caller."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from pipeline.core.config import PROJECT_ROOT
+    proc = subprocess.Popen([sys.executable, "-c", CHILD], cwd=PROJECT_ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "solving"
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        proc.kill()  # a solver that ate the signal would solve on
+    assert proc.returncode == 7 and "handler" in out, (proc.returncode, out)

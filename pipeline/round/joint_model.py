@@ -191,6 +191,7 @@ def solve_joint(reach: np.ndarray, drill_s: np.ndarray, move_s: np.ndarray,
     solver = cp_model.CpSolver()
     p = solver.parameters
     p.num_workers, p.random_seed, p.log_search_progress = settings.num_workers, settings.random_seed, settings.log
+    p.catch_sigint_signal = False  # Ctrl-C reaches the caller (else CP-SAT eats it, then the process exits 130)
     p.interleave_search = settings.interleave  # one worker alone runs no LNS, which is what improves a hint
     if settings.max_deterministic_time is not None:
         p.max_deterministic_time = settings.max_deterministic_time

@@ -162,6 +162,7 @@ def exact_waits(inst: Instance, routes: list[list[int]], oracle, deterministic_s
                 model.AddHint(var, int(math.ceil(v * 1000)))
         solver = cp_model.CpSolver()
         solver.parameters.num_workers = 1
+        solver.parameters.catch_sigint_signal = False  # Ctrl-C reaches the stage (CP-SAT would eat it, then exit 130)
         solver.parameters.random_seed = int(seed)
         solver.parameters.max_deterministic_time = float(deterministic_s)
         code = solver.Solve(model)
