@@ -130,7 +130,7 @@ class WaitsResult:
     objective_s: float
     bound_s: float  # CP-SAT's proven lower bound of the makespan for these routes (the model's)
     rounds: int  # solves (the lazy loop)
-    pairs: int  # disjunctions in the last model
+    pairs: int  # conflicting segment pairs found over all solves (the last model holds those found before it)
     conflicts_left: int  # segment pairs in conflict in the final timeline (0 unless the loop gave up)
 
 
