@@ -1,6 +1,7 @@
 """Shared fixtures: the reference boom and safety model, config composition (as the stages see it), and
 the tiny study (generate + CUIKM trained once per session) that tests get a private copy of."""
 
+import os
 import shutil
 import sqlite3
 from pathlib import Path
@@ -9,6 +10,32 @@ import pytest
 
 from pipeline.assembly.build import build_safety, load_boom
 from pipeline.core.config import compose, load_group_file
+
+# pytest-xdist workers beside each other (addopts: -n 2): each keeps to one torch and one numba thread,
+# so two workers on two cores do not oversubscribe them (OpenMP's spinning threads made a two-worker run
+# slower than one process). Stage subprocesses set their own threads (runtime.threads).
+_WORKERS = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+
+# Files whose tests take longest start first, so the other worker runs the rest beside them
+# (addopts: --no-loadscope-reorder keeps this order); measured with --durations in a one-process run.
+_LONGEST_FIRST = ("test_sweeps_dvc.py", "test_schedule.py", "test_reliability.py", "test_compiled.py",
+                  "test_check_execution.py")
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: i for i, name in enumerate(_LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the rest keep their order
+
+
+@pytest.fixture(autouse=True)
+def _one_thread_per_worker():
+    if _WORKERS > 1:
+        import numba
+        import torch
+
+        torch.set_num_threads(1)  # a stage's main() run in-process may have set more
+        numba.set_num_threads(1)
+    yield
 
 
 @pytest.fixture(scope="session")
