@@ -2,6 +2,7 @@
 no study stage reaches the product side (drill plans, motion, solve)."""
 
 import ast
+import functools
 import importlib.metadata
 import re
 import sys
@@ -138,8 +139,14 @@ def declared(*extras: str) -> set[str]:
     return {re.split(r"[<>=!~\[; ]", r, maxsplit=1)[0].lower().replace("_", "-") for r in reqs}
 
 
+@functools.cache
+def _owners() -> dict[str, list[str]]:
+    """Top-level module -> distributions: one scan of the installed packages (about a second each)."""
+    return importlib.metadata.packages_distributions()
+
+
 def distributions(module: str) -> set[str]:
-    return {d.lower().replace("_", "-") for d in importlib.metadata.packages_distributions().get(module, [module])}
+    return {d.lower().replace("_", "-") for d in _owners().get(module, [module])}
 
 
 @pytest.mark.parametrize(("folder", "extras"), [("pipeline", ("onnx",)), ("tests", ("onnx", "dev"))])
