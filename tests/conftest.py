@@ -11,9 +11,10 @@ import pytest
 from pipeline.assembly.build import build_safety, load_boom
 from pipeline.core.config import compose, load_group_file
 
-# pytest-xdist workers beside each other (addopts: -n 2): each keeps to one torch and one numba thread,
-# so two workers on two cores do not oversubscribe them (OpenMP's spinning threads made a two-worker run
-# slower than one process). Stage subprocesses set their own threads (runtime.threads).
+# pytest-xdist workers beside each other (addopts: -n 2): each keeps to one torch and one numba thread in
+# process, so two workers on two cores do not oversubscribe them: a two-worker run without this took 32 min
+# in CI against 24 in one process. Stage subprocesses keep their own settings (runtime.threads); the DVC
+# test sets one thread for its stages.
 _WORKERS = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
 
 # Files whose tests take longest start first, so the other worker runs the rest beside them

@@ -125,9 +125,11 @@ def test_dvc_repro_of_the_quick_experiment_then_up_to_date_and_a_param_change_re
     _copy_checkout(tmp_path)
     # DVC's bookkeeping is under test here, not the round's quality: the schedule stage keeps the best of
     # its seeds (no OR-Tools solve) and times no baselines. That cuts the stage from about 125 s to 33 s;
-    # the routing and the baselines run in tests/test_round.py and tests/test_schedule.py
-    _run([sys.executable, "-m", "pipeline.params", *SHORT, "round.routing=false", "schedule.baselines=false"],
-         cwd=tmp_path)
+    # the routing and the baselines run in tests/test_round.py and tests/test_schedule.py. One torch thread
+    # per stage (train too), as the other test worker runs beside it (2 cores): with two, the schedule
+    # stage's seed sweep took 38 s in CI against 8 s alone; with one, this test took 350 s against 401 s
+    _run([sys.executable, "-m", "pipeline.params", *SHORT, "round.routing=false", "schedule.baselines=false",
+          "runtime.threads=1", "runtime.train_threads=1"], cwd=tmp_path)
     dvc = [sys.executable, "-m", "dvc"]
     _run([*dvc, "repro"], cwd=tmp_path)
     d = "data/tiny"
