@@ -12,9 +12,9 @@ from pipeline.assembly.build import build_safety, load_boom
 from pipeline.core.config import compose, load_group_file
 
 # pytest-xdist workers beside each other (addopts: -n 2): each keeps to one torch and one numba thread in
-# process, so two workers on two cores do not oversubscribe them: a two-worker run without this took 32 min
-# in CI against 24 in one process. Stage subprocesses keep their own settings (runtime.threads); the DVC
-# test sets one thread for its stages.
+# process, so two workers on two cores do not oversubscribe them (a first two-worker CI run, without this,
+# the file order below or the DVC test's overrides, took 32 min against 24 in one process). Stage
+# subprocesses keep their own settings (runtime.threads); the DVC test sets one thread for its stages.
 _WORKERS = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
 
 # Files whose tests take longest start first, so the other worker runs the rest beside them
