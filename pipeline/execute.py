@@ -147,7 +147,7 @@ def _instance(cfg, rig, plan, round_settings):
     from pipeline.data.holes import joint_box
     from pipeline.motion.timing import rig_motions
     from pipeline.plans.reach import reach_table, rig_solvers
-    from pipeline.round.schedule import round_instance
+    from pipeline.round.from_plan import round_instance
     from pipeline.solvers.hybrid import HybridSettings
     from pipeline.solvers.network_start import first_starts, network_source
 
@@ -253,7 +253,7 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
                 ex = execute(acts, edges, cut)
                 interrupted = {st.interrupted}
             else:
-                from pipeline.round.instance import parse_round
+                from pipeline.round.settings import parse_round
 
                 # the round group's settings, then execute.replan_round's (routing off by default: on the clock)
                 round_settings = parse_round({**as_dict(cfg.round), **(as_dict(cfg.execute.get("replan_round"))

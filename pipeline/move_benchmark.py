@@ -4,7 +4,7 @@
     python -m pipeline.move_benchmark rig=twin move_benchmark.pairs=1000  # the 1000
 
 Solves the plan (``plan``, the demo face by default) by every boom of the rig (the reach table, the
-others at park; network ``solve.network``, hybrid ``solver``), then measures (pipeline/motion/benchmark.py):
+others at park; network ``solve.network``, hybrid ``solver``), then measures (pipeline/benchmarks/moves.py):
 moves between random pairs of each boom's ok holes with every other boom standing at a random ok hole
 of its own; chained against independent solutions (summed move time); boom-boom clearances per second.
 Writes ``paths.data/benchmark/moves_<rig>.csv`` (one row per pair), ``redundancy_<rig>.csv`` and
@@ -21,6 +21,7 @@ import hydra
 from omegaconf import DictConfig
 
 from pipeline.assembly.rig import composed_rig
+from pipeline.benchmarks.moves import MoveBenchmarkSettings, distance_rate, move_benchmark, redundancy
 from pipeline.calibration.model_file import model_setting
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError
@@ -28,7 +29,6 @@ from pipeline.core.io import write_csv, write_json
 from pipeline.core.settings import coerce, parse
 from pipeline.core.stage import run_stage
 from pipeline.data.holes import joint_box
-from pipeline.motion.benchmark import MoveBenchmarkSettings, distance_rate, move_benchmark, redundancy
 from pipeline.motion.timing import rig_motions
 from pipeline.plans.reach import reach_table, rig_solvers
 from pipeline.plans.read import read_plan

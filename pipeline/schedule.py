@@ -6,7 +6,7 @@
     python -m pipeline.schedule plan=... rig=twin schedule.strict=true   # exit 1 on an unsafe round
 
 Reads the plan (CSV or IREDES), solves every hole by every boom (the reach table, the hybrid with the
-other booms at park: :mod:`pipeline.plans.reach`), plans the round (:mod:`pipeline.round.schedule`:
+other booms at park: :mod:`pipeline.plans.reach`), plans the round (:mod:`pipeline.round.from_plan`:
 OR-Tools routing, the timeline with boom-boom conflicts and waits, the conflict loop; docs/round.md)
 and its baselines, and writes beside the plan (or into ``out``, a folder or a ``<stem>_round.csv``):
 
@@ -57,9 +57,10 @@ from pipeline.plans.model import COLLAR
 from pipeline.plans.reach import reach_table, rig_solvers
 from pipeline.plans.read import read_plan
 from pipeline.plans.solutions import spreadsheet_safe
-from pipeline.round.instance import parse_round, precedence_indices
+from pipeline.round.from_plan import schedule_round
 from pipeline.round.output import round_paths, write_round_set
-from pipeline.round.schedule import schedule_round
+from pipeline.round.problem import precedence_indices
+from pipeline.round.settings import parse_round
 from pipeline.solvers.hybrid import HybridSettings
 from pipeline.solvers.network_start import first_starts, network_source
 from pipeline.tracking.runs import TrackingSettings, stage_run
@@ -248,9 +249,9 @@ def round_problems(summary: dict) -> list[str]:
 
 
 def run_benchmark(cfg: DictConfig, settings: ScheduleSettings) -> dict:
-    """``schedule.benchmark=true``: :func:`pipeline.round.benchmark.round_benchmark` into
+    """``schedule.benchmark=true``: :func:`pipeline.benchmarks.round_faces.round_benchmark` into
     ``paths.data/benchmark/round_benchmark.{csv,md}`` and one MLflow run."""
-    from pipeline.round.benchmark import markdown, round_benchmark
+    from pipeline.benchmarks.round_faces import markdown, round_benchmark
 
     rigs = benchmark_rigs(cfg, settings.bench_rigs)  # every rig, boom model and motion checked before any work
     round_settings = parse_round(as_dict(cfg.round), "round")
@@ -282,7 +283,7 @@ def benchmark_rigs(cfg: DictConfig, names) -> list:
     """The benchmark's rigs by name, each in the drift its file selects, its booms from the composed ``boom``
     and ``boom_model`` (as :func:`pipeline.assembly.rig.composed_rig`), its motion from ``motion``, and the
     composed boom's safety model in that drift for designing the faces."""
-    from pipeline.round.benchmark import BenchRig
+    from pipeline.benchmarks.round_faces import BenchRig
 
     if cfg.get("boom_models"):
         raise ConfigError(f"boom_models = {as_dict(cfg.boom_models)!r}: names the booms of one rig; the round "

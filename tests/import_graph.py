@@ -19,8 +19,8 @@ PACKAGE = "pipeline"
 # The layer order (docs/design.md, "Layers"): a module may import only from its own package or a
 # lower one. The stages are the modules pipeline/<stage>.py; one stage never imports another.
 LAYERS = ["core", "optim", "geometry", "data", "assembly", "learning", "solvers", "evaluation", "calibration",
-          "deploy", "plans", "motion", "round", "execution", "tracking", "stages"]
-PRODUCT_PACKAGES = {"plans", "motion", "round", "execution"}
+          "deploy", "plans", "motion", "round", "execution", "benchmarks", "tracking", "stages"]
+PRODUCT_PACKAGES = {"plans", "motion", "round", "execution", "benchmarks"}
 STUDY_STAGES = {"generate", "train", "evaluate", "benchmark", "paper_baselines", "report", "derive_box", "export",
                 "export_benchmark", "calibrate", "params", "dashboard"}
 PRODUCT_STAGES = {"solve", "demo_face", "move_benchmark", "schedule", "execute"}

@@ -20,10 +20,11 @@ from pipeline.motion.timing import move_time, rig_motions
 from pipeline.plans.demo_face import demo_face
 from pipeline.plans.reach import reach_table, rig_solvers
 from pipeline.round.detours import FAILED, RETRACT, STRAIGHT, MoveBook
-from pipeline.round.instance import Instance, RoundSettings, drill_phases
+from pipeline.round.from_plan import round_instance
 from pipeline.round.oracle import _positions
-from pipeline.round.schedule import round_instance
+from pipeline.round.problem import Instance, drill_phases
 from pipeline.round.seeds import balanced_strips, sweep_routes
+from pipeline.round.settings import RoundSettings
 from pipeline.solvers.hybrid import HybridSettings
 
 D = torch.float64

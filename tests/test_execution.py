@@ -30,8 +30,8 @@ from pipeline.execution.sweeps import conflicts
 from pipeline.geometry.boom_pair import BoomPair
 from pipeline.motion.path import travel
 from pipeline.motion.timing import motion_from_config, profile
-from pipeline.round.instance import RoundSettings
-from pipeline.round.kinematic import kinematic_round
+from pipeline.round.rig_problem import kinematic_round
+from pipeline.round.settings import RoundSettings
 from pipeline.round.tables import trajectory_table
 from pipeline.round.timeline import resolve, scan
 

@@ -10,8 +10,9 @@ import pytest
 
 from pipeline.core.errors import ConfigError
 from pipeline.round.bounds import lower_bound
-from pipeline.round.instance import Instance, RoundSettings
+from pipeline.round.problem import Instance
 from pipeline.round.routing import route
+from pipeline.round.settings import RoundSettings
 from pipeline.round.timeline import simulate
 
 

@@ -13,8 +13,8 @@ import itertools
 import numpy as np
 import pytest
 
-from pipeline.round.instance import Instance, drill_phases
 from pipeline.round.joint_model import JointSettings, joint_round, standing_conflicts
+from pipeline.round.problem import Instance, drill_phases
 
 SETTINGS = JointSettings(max_deterministic_time=5.0)
 

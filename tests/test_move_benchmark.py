@@ -1,4 +1,4 @@
-"""The move benchmark and the redundancy measurement (pipeline/motion/benchmark.py) on a few demo-face holes:
+"""The move benchmark and the redundancy measurement (pipeline/benchmarks/moves.py) on a few demo-face holes:
 shares and times consistent with the per-move rows, clear moves with non-negative clearances, the same seed
 giving the same sample, move sums against a hand loop over the time model, a one-boom rig refused."""
 
@@ -9,9 +9,9 @@ import torch
 
 from pipeline import demo_face, move_benchmark
 from pipeline.assembly.rig import build_rig
+from pipeline.benchmarks.moves import MoveBenchmarkSettings, distance_rate, path_time, redundancy
+from pipeline.benchmarks.moves import move_benchmark as run_moves
 from pipeline.core.errors import ConfigError
-from pipeline.motion.benchmark import MoveBenchmarkSettings, distance_rate, path_time, redundancy
-from pipeline.motion.benchmark import move_benchmark as run_moves
 from pipeline.motion.moves import KINDS
 from pipeline.motion.timing import move_time, rig_motions
 from pipeline.plans.csv_plan import read_csv_plan, write_csv_plan

@@ -20,10 +20,11 @@ from pipeline.motion.checks import lever_arms
 from pipeline.motion.timing import motion_from_config, profile
 from pipeline.round.baselines import naive_routes, nearest_routes, side_allocation
 from pipeline.round.bounds import lower_bound
-from pipeline.round.instance import Instance, RoundSettings, drill_phases, parse_round, precedence_indices
-from pipeline.round.kinematic import kinematic_round
-from pipeline.round.plan import baseline, plan_round, reversed_variant
+from pipeline.round.planner import baseline, plan_round, reversed_variant
+from pipeline.round.problem import Instance, drill_phases, precedence_indices
+from pipeline.round.rig_problem import kinematic_round
 from pipeline.round.routing import route
+from pipeline.round.settings import RoundSettings, parse_round
 from pipeline.round.tables import round_table, summary, trajectory_table
 from pipeline.round.timeline import resolve, scan, simulate
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from test_round import SetOracle, synthetic
 
-from pipeline.round.instance import RoundSettings
+from pipeline.round.settings import RoundSettings
 from pipeline.round.timeline import resolve, scan
 from pipeline.round.waits import exact_waits, place_waits
 
@@ -124,7 +124,7 @@ def test_exact_waits_never_lose_to_the_greedy_repair(seed):
 def test_greedy_is_the_default_and_unknown_methods_are_refused():
     from pipeline.core.config import load_group_file
     from pipeline.core.errors import ConfigError
-    from pipeline.round.instance import parse_round
+    from pipeline.round.settings import parse_round
     assert parse_round(load_group_file("round", "default")).waits == "greedy"
     with pytest.raises(ConfigError, match="waits"):
         parse_round({"waits": "fastest"})

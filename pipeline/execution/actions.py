@@ -22,7 +22,7 @@ import pandas as pd
 
 from pipeline.core.errors import InputError
 from pipeline.execution.graph import find_cycle
-from pipeline.round.instance import Instance
+from pipeline.round.problem import Instance
 from pipeline.round.timeline import Timeline
 
 ACTION_COLUMNS = ["boom", "action", "kind", "hole_id", "t_start", "t_end"]

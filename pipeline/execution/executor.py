@@ -23,7 +23,7 @@ import numpy as np
 from pipeline.core.errors import InputError
 from pipeline.execution.actions import Actions
 from pipeline.execution.graph import topological
-from pipeline.round.instance import Instance
+from pipeline.round.problem import Instance
 from pipeline.round.timeline import Timeline
 
 

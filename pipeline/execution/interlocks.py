@@ -58,7 +58,7 @@ from pipeline.execution.actions import Actions, actions_of
 from pipeline.execution.executor import Execution, execute, realised
 from pipeline.execution.graph import find_cycle, reduce_edges
 from pipeline.execution.sweeps import Conflicts, conflicts
-from pipeline.round.instance import Instance
+from pipeline.round.problem import Instance
 from pipeline.round.timeline import Timeline, scan
 
 

@@ -9,7 +9,7 @@ every action it waits for ended), so the prefix is a part of an execution of the
 where X drills very long) and is clear at every instant, standing included.
 
 Then, when the last of them ends (``t_hand``), the round is **handed on**: the holes not yet started
-are planned again (:func:`pipeline.round.plan.plan_round` on the instance with each boom starting where
+are planned again (:func:`pipeline.round.planner.plan_round` on the instance with each boom starting where
 it stands, ``Instance.start``; a boom standing at a hole it has not drilled drills it first), made
 robust (:func:`pipeline.execution.interlocks.robust_round`) and executed from ``t_hand``. Every boom's
 first new action waits for every other boom's last prefix action (a barrier: the new plan was made for
@@ -130,7 +130,7 @@ def hand_on(inst, oracle, settings, st: Standing, say=None, book=None, planned_o
     the new plan beside the sweeps, and the first candidate tried when the new plan cannot be made
     robust (then the sweeps)."""
     from pipeline.execution.interlocks import robust_round
-    from pipeline.round.plan import SEEDS, first_where_standing, plan_round, seed_routes, timed_routes
+    from pipeline.round.planner import SEEDS, first_where_standing, plan_round, seed_routes, timed_routes
 
     t0 = time.perf_counter()
     sub, dropped = handed_on_instance(inst, st)

@@ -1,7 +1,7 @@
 """The planned round made robust for the ``schedule`` stage: interlocks, the re-timed nominal round, the
 Monte Carlo of drilling durations, and one realised round to look at.
 
-:func:`robust_finish` returns the hook :func:`pipeline.round.schedule.schedule_round` calls once the
+:func:`robust_finish` returns the hook :func:`pipeline.round.from_plan.schedule_round` calls once the
 round is planned (``finish``): it builds the interlocks (:func:`~pipeline.execution.interlocks.robust_round`),
 hands back the re-timed nominal timeline (the one the trajectory file is written from, which the
 execution rule reproduces exactly with the spec's durations) and keeps what the stage writes: the
@@ -19,7 +19,7 @@ from pipeline.execution.actions import actions_table, interlocks_table
 from pipeline.execution.executor import Execution, realised
 from pipeline.execution.interlocks import RobustRound, robust_round
 from pipeline.execution.montecarlo import Draws, ExecutionSettings, draws, run, summary
-from pipeline.round.instance import Instance
+from pipeline.round.problem import Instance
 from pipeline.round.timeline import Timeline
 
 

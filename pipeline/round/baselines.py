@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.core.errors import ConfigError
-from pipeline.round.instance import Instance
+from pipeline.round.problem import Instance
 
 
 def side_allocation(inst: Instance) -> np.ndarray:

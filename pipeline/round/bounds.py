@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.round.instance import Instance
+from pipeline.round.problem import Instance
 
 
 def lower_bound(inst: Instance) -> float:

@@ -29,7 +29,7 @@ routing solved after it pays the detours' real durations.
 
 Boom-boom clearance of a straight move is not this module's business: it depends on where the
 other booms are at that time, which the timeline's oracle checks (and the routing pays for a move
-that another boom at park blocks: :func:`pipeline.round.plan.park_blocked`).
+that another boom at park blocks: :func:`pipeline.round.planner.park_blocked`).
 """
 
 from __future__ import annotations
@@ -43,7 +43,8 @@ import torch
 from pipeline.motion.checks import certify_straight_moves, margins
 from pipeline.motion.moves import PlannerSettings, plan_move
 from pipeline.motion.path import Path, unwrapped
-from pipeline.round.instance import Instance, RoundSettings
+from pipeline.round.problem import Instance
+from pipeline.round.settings import RoundSettings
 
 UNKNOWN, STRAIGHT, RETRACT, PLANNED, FAILED = range(5)
 KIND = {STRAIGHT: "straight", RETRACT: "retract", PLANNED: "planned", FAILED: "failed"}

@@ -20,7 +20,7 @@ the bound: each boom's drilling plus its moves fit in the makespan (the LP then 
 
 **What it does not know**: conflicts while a boom moves, the detours' durations (straight moves) and
 the moves another boom at park blocks. So its routes are timed by the planner's own timeline
-(:func:`pipeline.round.plan.timed_routes`: moves certified, move conflicts waited for), and that
+(:func:`pipeline.round.planner.timed_routes`: moves certified, move conflicts waited for), and that
 makespan, not the objective, is what compares with the routing.
 
 **Hint**: routes (the planner's sweep) timed by the timeline with standing conflicts only
@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.core.settings import rule
-from pipeline.round.instance import Instance
+from pipeline.round.problem import Instance
 from pipeline.round.timeline import Timeline, resolve
 
 MS = 1000  # the model's unit: milliseconds

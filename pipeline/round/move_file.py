@@ -27,7 +27,7 @@ import torch
 from pipeline.core.errors import InputError
 from pipeline.motion.path import Path
 from pipeline.round.detours import KINDS, MoveBook
-from pipeline.round.instance import RoundSettings
+from pipeline.round.settings import RoundSettings
 
 VERSION = 1
 

@@ -33,7 +33,7 @@ comparison means what it says, but then a boom may have to wait for another: wit
 the time dimension gets slack (waiting) up to the horizon, and the span counts those waits. Without
 them the slack is 0 (a tighter, faster model).
 
-**Conflicts fed back** (:mod:`pipeline.round.plan`): a pair of holes i (boom a) and j (boom b) whose
+**Conflicts fed back** (:mod:`pipeline.round.planner`): a pair of holes i (boom a) and j (boom b) whose
 conflict needed a wait becomes (1) a hard rule: while i is on a and j on b, their drilling
 intervals do not overlap (``Max`` of four reified constraints: a vehicle differs, or one interval
 ends before the other begins; the time dimension then gets slack, the waits, as with precedence),
@@ -54,7 +54,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.core.errors import ConfigError
-from pipeline.round.instance import Instance, RoundSettings
+from pipeline.round.problem import Instance
+from pipeline.round.settings import RoundSettings
 
 MS = 1000.0  # time unit of the model: milliseconds
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.round.baselines import stable_order
-from pipeline.round.instance import Instance
+from pipeline.round.problem import Instance
 
 
 def balanced_strips(inst: Instance) -> np.ndarray:

@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from pipeline.round.instance import Instance
+from pipeline.round.problem import Instance
 from pipeline.round.timeline import Timeline, boom_times
 
 

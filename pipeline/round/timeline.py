@@ -46,7 +46,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.core.errors import ConfigError
-from pipeline.round.instance import Instance
+from pipeline.round.problem import Instance
 
 ESCALATIONS = 4  # default of round.escalations: waits for the other boom's later segments before giving up
 

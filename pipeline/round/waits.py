@@ -42,7 +42,8 @@ from dataclasses import dataclass
 import numpy as np
 from ortools.sat.python import cp_model
 
-from pipeline.round.instance import Instance, RoundSettings
+from pipeline.round.problem import Instance
+from pipeline.round.settings import RoundSettings
 from pipeline.round.timeline import Segment, Timeline, conflicting_segments, resolve, simulate
 
 GAP_S = 1e-6  # kept between two segments a disjunction orders: touching ends stay apart in float arithmetic

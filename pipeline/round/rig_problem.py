@@ -14,8 +14,9 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from pipeline.round.instance import Instance, RoundSettings, drill_phases
 from pipeline.round.oracle import KinematicOracle
+from pipeline.round.problem import Instance, drill_phases
+from pipeline.round.settings import RoundSettings
 
 D = torch.float64
 

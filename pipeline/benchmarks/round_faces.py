@@ -4,7 +4,7 @@ Faces: the demo face and generated faces (:func:`pipeline.plans.faces.generated_
 about the requested hole counts, each designed for the rig's own drift (trio: the 8 m x 7 m one).
 Rigs: any of conf/rig/. Per cell: makespan, lower bound and ratio, naive and nearest, moving and
 waiting seconds, planning seconds, smallest boom-boom clearance, waits, fallback, moves not clear.
-Every cell uses :func:`pipeline.round.schedule.schedule_round`, as the stage does.
+Every cell uses :func:`pipeline.round.from_plan.schedule_round`, as the stage does.
 """
 
 from __future__ import annotations
@@ -24,8 +24,8 @@ from pipeline.motion.timing import MotionModel
 from pipeline.plans.demo_face import demo_face
 from pipeline.plans.faces import generated_face
 from pipeline.plans.reach import reach_table, rig_solvers
-from pipeline.round.instance import RoundSettings
-from pipeline.round.schedule import schedule_round
+from pipeline.round.from_plan import schedule_round
+from pipeline.round.settings import RoundSettings
 from pipeline.solvers.hybrid import HybridSettings
 
 

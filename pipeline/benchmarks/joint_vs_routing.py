@@ -1,11 +1,11 @@
 """The joint CP-SAT model against today's planner, at equal wall time (issue 28, "Measure, then choose").
 
 Per face: the reach table and today's planner as the stage runs it
-(:func:`pipeline.round.schedule.schedule_round`, counts: its planning wall time is T); then the joint
+(:func:`pipeline.round.from_plan.schedule_round`, counts: its planning wall time is T); then the joint
 model (:mod:`pipeline.round.joint_model`) on the same reach table with straight move times and the
 oracle's standing conflicts, hinted with the better sweep, given ``factor * T`` seconds of wall time
 (model building included); its routes are timed by the planner's own timeline with the planner's move
-book (:func:`pipeline.round.plan.timed_routes`: every move certified, a detour where the straight line
+book (:func:`pipeline.round.planner.timed_routes`: every move certified, a detour where the straight line
 breaks self or tunnel clearance, waits for every boom-boom conflict), and that makespan is compared.
 docs/benchmarks.md, "Joint CP-SAT model against the routing (issue 28)".
 """
@@ -22,10 +22,10 @@ from pipeline.data.holes import joint_box
 from pipeline.plans.demo_face import demo_face
 from pipeline.plans.faces import generated_face
 from pipeline.plans.reach import reach_table, rig_solvers
-from pipeline.round.instance import RoundSettings
+from pipeline.round.from_plan import round_instance, schedule_round
 from pipeline.round.joint_model import JointSettings, hint_timeline, joint_round, standing_conflicts
-from pipeline.round.plan import SEEDS, seed_routes, timed_routes
-from pipeline.round.schedule import round_instance, schedule_round
+from pipeline.round.planner import SEEDS, seed_routes, timed_routes
+from pipeline.round.settings import RoundSettings
 from pipeline.round.timeline import scan, simulate
 from pipeline.solvers.hybrid import HybridSettings
 
@@ -33,7 +33,7 @@ from pipeline.solvers.hybrid import HybridSettings
 def joint_vs_routing(faces: Sequence, case, hybrid: HybridSettings, settings: RoundSettings, first_start: Callable,
                      factors: Sequence[float] = (1.0, 2.0), seed: int = 0, box: dict | None = None,
                      random_seed: int = 0, say=print, done: Callable | None = None) -> pd.DataFrame:
-    """One row per (face, wall-time factor); ``case``: a :class:`pipeline.round.benchmark.BenchRig`;
+    """One row per (face, wall-time factor); ``case``: a :class:`pipeline.benchmarks.round_faces.BenchRig`;
     ``faces``: "demo" or hole counts (:func:`pipeline.plans.faces.generated_face` with ``seed``);
     ``done``: called with the table so far after each row (a long run keeps what it measured)."""
     rig, rows = case.rig, []

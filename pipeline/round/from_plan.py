@@ -6,8 +6,8 @@ same moves with the same conflict handling:
 1. each boom's joint solution of each hole is the reach table's (the hybrid's answer with the other
    booms at park); a boom can drill a hole when its row is ``ok``;
 2. move costs start as the time model's synchronised straight-line moves between those solutions
-   (:func:`pipeline.round.kinematic.kinematic_round`);
-3. the planner (:func:`pipeline.round.plan.plan_round`) and the baselines share one oracle (the real
+   (:func:`pipeline.round.rig_problem.kinematic_round`);
+3. the planner (:func:`pipeline.round.planner.plan_round`) and the baselines share one oracle (the real
    boom-boom clearances) and one move book (:mod:`pipeline.round.detours`): every move a candidate
    uses is checked for the boom's own self and tunnel clearances at 1 cm of point travel before it
    is timed, and one that is not clear is re-planned (retract, or OMPL) and its detour's duration,
@@ -28,9 +28,10 @@ from pipeline.geometry.rig import Rig
 from pipeline.plans.model import COLLAR, DrillPlan
 from pipeline.plans.reach import Reach
 from pipeline.plans.solutions import INVALID
-from pipeline.round.instance import RoundSettings, precedence_indices
-from pipeline.round.kinematic import kinematic_round
-from pipeline.round.plan import RoundPlan, baseline, plan_round
+from pipeline.round.planner import RoundPlan, baseline, plan_round
+from pipeline.round.problem import precedence_indices
+from pipeline.round.rig_problem import kinematic_round
+from pipeline.round.settings import RoundSettings
 from pipeline.round.tables import boom_floor, round_table, summary, trajectory_table
 from pipeline.round.timeline import Timeline
 

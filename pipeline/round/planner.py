@@ -1,20 +1,21 @@
 """Plan a round: seed, route, time with waits, feed the conflicts back into the routing, repeat.
 
-0. the sweeps (:mod:`pipeline.round.seeds`) and the spec's baselines (naive, nearest) are timed; the
+0. the sweeps (:mod:`pipeline.round.seeds`) and the spec's baselines (naive, nearest) are timed (``_time_seeds``); the
    best is the first candidate and the routing's initial solution (so the optimised round is never
    worse than the better baseline);
-1. :func:`pipeline.round.routing.route` allocates and orders the holes (makespan, no conflicts known);
+1. :func:`pipeline.round.routing.route` allocates and orders the holes (makespan, no conflicts known; moves
+   another boom at park blocks cost more: ``_routing_costs``);
 2. every candidate's moves are looked at before it is timed (:class:`pipeline.round.detours.MoveBook`:
    a move that breaks self or tunnel clearance is re-planned, its detour's duration and motion used);
 3. :func:`pipeline.round.waits.place_waits` times the routes with the waits that keep every boom-boom
    distance (``round.waits``: ``exact`` by CP-SAT, optimal for the routes; ``greedy``, the repair
    rule of :mod:`pipeline.round.timeline`, which falls back to one boom at a time; or the better);
-4. every pair of holes (i on boom a, j on boom b: where each stood, or the hole it was moving to)
+4. (``_conflicts_to_feed_back``) every pair of holes (i on boom a, j on boom b: where each stood, or the hole it was moving to)
    whose conflict needed a wait is fed back (:mod:`pipeline.round.routing`: not drilled at the same
    time while on a and b; a soft same-boom cost where one boom can drill both), and the routing
    starts again from the best routes so far.
 
-The best conflict-free timeline (fewest conflicts left, then makespan) is kept. **Why it ends:** step 4
+The best conflict-free timeline (fewest conflicts left, then makespan) is kept. **Why it ends** (``_why_stop``): step 4
 runs only when the last timeline revealed a pair not yet fed back, a set that only grows and holds at
 most (B H)^2 entries; at most ``reopt_rounds`` times; not once the best round is within ``stop_ratio``
 of the lower bound; and, only where the opt-in wall-time ``budget_s`` is set (not reproducible), not
@@ -37,10 +38,11 @@ from pipeline.motion.path import unwrapped
 from pipeline.round.baselines import naive_routes, nearest_routes
 from pipeline.round.bounds import lower_bound
 from pipeline.round.detours import PLANNED, RETRACT, MoveBook
-from pipeline.round.instance import Instance, RoundSettings
 from pipeline.round.oracle import ConflictOracle, KinematicOracle
+from pipeline.round.problem import Instance
 from pipeline.round.routing import RoutingFailed, route
 from pipeline.round.seeds import sweep_routes
+from pipeline.round.settings import RoundSettings
 from pipeline.round.timeline import Timeline
 from pipeline.round.waits import place_waits
 
@@ -92,90 +94,158 @@ def make_book(inst: Instance, oracle, settings: RoundSettings) -> MoveBook | Non
     return MoveBook(oracle, inst.n_holes, settings)
 
 
+class _Clock:
+    """The opt-in wall time (``round.budget_s``, ``round.time_limit_s``): without either, no decision
+    of the planner reads a clock (counts only: ``round.solution_limit``, ``round.search_checks``)."""
+
+    def __init__(self, settings: RoundSettings, time_limit_s: float | None):
+        self.t0 = time.perf_counter()
+        self.budget_s = settings.budget_s
+        self.base_limit = time_limit_s if time_limit_s is not None else settings.time_limit_s
+        self.last_timing = 0.0  # seconds the last candidate took to time: the next one's estimate
+
+    def remaining(self) -> float:
+        return math.inf if self.budget_s is None else self.budget_s - (time.perf_counter() - self.t0)
+
+    def limit(self) -> float | None:
+        """The next routing solve's time limit (None: counts only)."""
+        if self.base_limit is None and self.budget_s is None:
+            return None
+        return max(0.1, min(self.base_limit if self.base_limit is not None else math.inf, self.remaining()))
+
+    def out_of_budget(self) -> bool:
+        """The next solve (its time limit, if any) and its timing would pass ``budget_s``."""
+        return self.budget_s is not None and self.remaining() < (self.base_limit or 0.0) + self.last_timing
+
+    def timed(self, timer: _Timer, routes: list[list[int]]) -> Timeline:
+        started = time.perf_counter()
+        tl = timer(routes)
+        self.last_timing = max(self.last_timing, time.perf_counter() - started)
+        return tl
+
+
+@dataclass
+class _Start:
+    """Step 0's answer: the best candidate so far and where it came from."""
+
+    best: Timeline | None = None
+    seed: str | None = None
+    seeds: dict = field(default_factory=dict)  # kind -> routes (the sweeps and the caller's candidates)
+    baselines: dict = field(default_factory=dict)  # kind -> timeline of the spec's baselines
+    baselines_s: float = 0.0
+
+
+def _time_seeds(inst: Instance, timer: _Timer, clock: _Clock, settings: RoundSettings, baselines: bool,
+                candidates: dict[str, list[list[int]]] | None, say: Callable[[str], None]) -> _Start:
+    """Step 0: the sweeps, the caller's candidates and (``baselines``) the spec's naive and nearest,
+    each timed; the best is the first candidate and the routing's initial solution."""
+    start = _Start()
+    if seeded(inst):
+        start.seeds = {kind: seed_routes(inst, kind, settings.sweep_band_m) for kind in SEEDS}
+    start.seeds.update({k: first_where_standing(inst, r) for k, r in (candidates or {}).items()})
+    if not start.seeds:
+        return start
+    for kind, routes in start.seeds.items():
+        tl = clock.timed(timer, routes)
+        say(f"seed {kind}: makespan {tl.makespan:.1f} s, {tl.conflicts_left} conflicts left")
+        if _better(tl, start.best):
+            start.best, start.seed = tl, kind
+    t_base = time.perf_counter()
+    for kind in BASELINES if baselines and seeded(inst) else ():  # reported, and candidates the routing can beat
+        tl = start.baselines[kind] = timer(seed_routes(inst, kind))
+        say(f"baseline {kind}: makespan {tl.makespan:.1f} s, {tl.conflicts_left} conflicts left")
+        if _better(tl, start.best):
+            start.best, start.seed = tl, kind
+    start.baselines_s = time.perf_counter() - t_base
+    return start
+
+
+def _routing_costs(inst: Instance, oracle, settings: RoundSettings, book: MoveBook | None,
+                   say: Callable[[str], None]) -> Callable[[Instance], Instance]:
+    """Step 1's costs: the instance's move times plus ``blocked_penalty_s`` for each move another boom
+    at park blocks (:func:`park_blocked`), unless a detour was planned clear of it. Not for a round
+    handed on: its booms do not start at park."""
+    if settings.blocked_penalty_s <= 0 or inst.n_booms < 2 or inst.start is not None:
+        return lambda cur: cur
+    blocked = park_blocked(inst, oracle, settings.blocked_neighbours, settings.blocked_screen_m)
+    say(f"moves blocked by another boom at park: {int(blocked.sum())} of the {settings.blocked_neighbours} "
+        "shortest per node (penalised in the routing)")
+
+    def costed(cur: Instance) -> Instance:
+        penalty = blocked.copy()
+        if book is not None:
+            penalty &= (book.status != RETRACT) & (book.status != PLANNED)
+        return replace(cur, move_s=cur.move_s + settings.blocked_penalty_s * penalty)
+
+    return costed
+
+
+def _conflicts_to_feed_back(tl: Timeline, inst: Instance, penalised: dict, apart: set) -> tuple[dict, set]:
+    """Step 4: the hole pairs whose conflict needed a wait in ``tl`` and are not fed back yet: ``(i, a,
+    j, b)`` apart (not drilled at the same time on a and b) and, where one boom can drill both, a
+    same-boom cost of the longest wait."""
+    new, new_apart = {}, set()
+    for rec in tl.repairs:
+        (i, j), (a, b) = rec["nodes"], rec["booms"]
+        if max(i, j) >= inst.n_holes or i == j:
+            continue
+        if (i, a, j, b) not in apart and (j, b, i, a) not in apart:
+            new_apart.add((i, a, j, b))
+        key = (min(i, j), max(i, j))
+        if key not in penalised and (inst.reach[:, i] & inst.reach[:, j]).any():
+            new[key] = max(new.get(key, 0.0), rec["wait_s"])
+    return new, new_apart
+
+
+def _why_stop(best: Timeline, lb: float, it: int, fresh: bool, settings: RoundSettings, clock: _Clock) -> str:
+    """Why the re-optimisation ends after round ``it`` (module docstring), or "" to go on;
+    ``fresh``: the last timeline revealed a pair not yet fed back."""
+    if best.conflicts_left == 0 and best.makespan <= settings.stop_ratio * lb:
+        return f"within stop_ratio {settings.stop_ratio} of the lower bound"
+    if not fresh:
+        return "no new conflict pair to feed back"
+    if it == settings.reopt_rounds:
+        return f"reopt_rounds ({settings.reopt_rounds}) done"
+    if clock.out_of_budget():
+        return f"budget_s ({settings.budget_s:g} s): no time left for another routing solve"
+    return ""
+
+
 def plan_round(inst: Instance, oracle: ConflictOracle, settings: RoundSettings,
                progress: Callable[[str], None] | None = None,
                time_limit_s: float | None = None, book: MoveBook | None = None, baselines: bool = True,
                candidates: dict[str, list[list[int]]] | None = None) -> RoundPlan:
-    """The round of ``inst`` (module docstring); ``book``: the move book to use (default
-    :func:`make_book`); ``baselines``: time the spec's naive and nearest after the sweeps, as
+    """The round of ``inst``, by the module docstring's steps; ``book``: the move book to use (default
+    :func:`make_book`; one given with moves already known, as for a round handed on, lends their
+    detours' durations); ``baselines``: time the spec's naive and nearest after the sweeps, as
     candidates and routing starts (``baselines`` of the plan, ``baselines_s`` of ``planning_s``);
-    re-optimisation stops early when the best round is within
-    ``settings.stop_ratio`` of the lower bound or the planning time passes ``settings.budget_s``."""
-    t0 = time.perf_counter()
+    ``candidates``: more routes to time in step 0 (kind -> routes)."""
+    clock = _Clock(settings, time_limit_s)
     say = progress or (lambda _msg: None)
     book = book if book is not None else make_book(inst, oracle, settings)
-    if book is not None:  # a book given with moves already known (a round handed on): their detours' durations
+    if book is not None:
         inst = book.apply(inst)
-    timer = _Timer(inst, oracle, settings, book)
+    timer = _Timer(inst, oracle, settings, book)  # step 2: every candidate's moves looked at, then step 3
     lb = lower_bound(inst)
-    best, seed, done = None, None, {}
-    baselines_s = 0.0
-    last_timing = 0.0  # seconds the last candidate took to time (moves looked at, waits): the next one's estimate
-    seeds = {kind: seed_routes(inst, kind, settings.sweep_band_m) for kind in SEEDS} if seeded(inst) else {}
-    seeds.update({k: first_where_standing(inst, r) for k, r in (candidates or {}).items()})  # the caller's too
-    if seeds:  # the sweeps (and given candidates), timed: the best is a candidate and the routing's start
-        for kind, routes in seeds.items():
-            t_timing = time.perf_counter()
-            tl = timer(routes)
-            last_timing = max(last_timing, time.perf_counter() - t_timing)
-            say(f"seed {kind}: makespan {tl.makespan:.1f} s, {tl.conflicts_left} conflicts left")
-            if _better(tl, best):
-                best, seed = tl, kind
-        t_base = time.perf_counter()
-        for kind in BASELINES if baselines and seeded(inst) else ():  # the spec's rounds: reported, and candidates (so
-            tl = done[kind] = timer(seed_routes(inst, kind))  # the routing can start from, and beat, them)
-            say(f"baseline {kind}: makespan {tl.makespan:.1f} s, {tl.conflicts_left} conflicts left")
-            if _better(tl, best):
-                best, seed = tl, kind
-        baselines_s = time.perf_counter() - t_base
-
-    # Wall time is opt-in (round.budget_s, round.time_limit_s): without it no decision reads a clock.
-    base_limit = time_limit_s if time_limit_s is not None else settings.time_limit_s
-
-    def remaining() -> float:
-        return math.inf if settings.budget_s is None else settings.budget_s - (time.perf_counter() - t0)
-
-    def limit() -> float | None:
-        if base_limit is None and settings.budget_s is None:
-            return None  # counts only: round.solution_limit
-        return max(0.1, min(base_limit if base_limit is not None else math.inf, remaining()))
-
-    def out_of_budget() -> bool:  # the next solve (its time limit, if any) and its timing would pass budget_s
-        return settings.budget_s is not None and remaining() < (base_limit or 0.0) + last_timing
-
-    routing = best is None or (settings.routing and not out_of_budget())  # at least one solve, budget allowing
-    blocked = None
-    # (not for a round handed on: its booms do not start at park, and its re-planning is on the clock)
-    if routing and settings.blocked_penalty_s > 0 and inst.n_booms > 1 and inst.start is None:
-        blocked = park_blocked(inst, oracle, settings.blocked_neighbours, settings.blocked_screen_m)
-        say(f"moves blocked by another boom at park: {int(blocked.sum())} of the {settings.blocked_neighbours} "
-            "shortest per node (penalised in the routing)")
-
-    def costed() -> Instance:
-        cur = timer.inst
-        if blocked is None:
-            return cur
-        penalty = blocked.copy()
-        if book is not None:  # a detour was planned clear of the other booms at park
-            penalty &= (book.status != RETRACT) & (book.status != PLANNED)
-        return replace(cur, move_s=cur.move_s + settings.blocked_penalty_s * penalty)
-
+    start = _time_seeds(inst, timer, clock, settings, baselines, candidates, say)  # step 0
+    best = start.best
+    routing = best is None or (settings.routing and not clock.out_of_budget())  # at least one solve
     penalised: dict[tuple[int, int], float] = {}
     apart: set[tuple[int, int, int, int]] = set()
-    stopped = ""
-    rounds = 0
-    r = None
-    if not routing:
+    rounds, r = 0, None
+    costed = _routing_costs(inst, oracle, settings, book, say) if routing else (lambda cur: cur)
+    if routing:  # step 1
+        r = route(costed(timer.inst), settings, time_limit_s=clock.limit(),
+                  initial=None if best is None else best.routes)
+        rounds, stopped = 1, ""
+    else:
         stopped = ("round.routing = false: the best seed" if not settings.routing else
                    f"budget_s ({settings.budget_s:g} s): the seeds left too little for a routing solve and its timing")
-    else:
-        r = route(costed(), settings, time_limit_s=limit(), initial=None if best is None else best.routes)
-        rounds = 1
     for it in range(settings.reopt_rounds + 1):
         if r is None:
             break
         t_timing = time.perf_counter()
-        tl = timer(r.routes)
+        tl = timer(r.routes)  # steps 2 and 3
         say(f"round {it}: makespan {tl.makespan:.1f} s, {len(tl.repairs)} waits, {tl.conflicts_left} conflicts left")
         if _better(tl, best):
             best = tl
@@ -183,46 +253,29 @@ def plan_round(inst: Instance, oracle: ConflictOracle, settings: RoundSettings,
         if alt is not None and _better(alt, best):
             say(f"round {it}, one boom reversed: makespan {alt.makespan:.1f} s, {alt.conflicts_left} conflicts left")
             best = alt
-        last_timing = time.perf_counter() - t_timing
-        new, new_apart = {}, set()
-        for rec in tl.repairs:
-            (i, j), (a, b) = rec["nodes"], rec["booms"]
-            if max(i, j) >= inst.n_holes or i == j:
-                continue
-            if (i, a, j, b) not in apart and (j, b, i, a) not in apart:
-                new_apart.add((i, a, j, b))
-            key = (min(i, j), max(i, j))
-            if key not in penalised and (inst.reach[:, i] & inst.reach[:, j]).any():
-                new[key] = max(new.get(key, 0.0), rec["wait_s"])
-        if best.conflicts_left == 0 and best.makespan <= settings.stop_ratio * lb:
-            stopped = f"within stop_ratio {settings.stop_ratio} of the lower bound"
-            break
-        if not (new or new_apart):
-            stopped = "no new conflict pair to feed back"
-            break
-        if it == settings.reopt_rounds:
-            stopped = f"reopt_rounds ({settings.reopt_rounds}) done"
-            break
-        if out_of_budget():
-            stopped = f"budget_s ({settings.budget_s:g} s): no time left for another routing solve"
+        clock.last_timing = time.perf_counter() - t_timing
+        new, new_apart = _conflicts_to_feed_back(tl, inst, penalised, apart)  # step 4
+        stopped = _why_stop(best, lb, it, bool(new or new_apart), settings, clock)
+        if stopped:
             break
         penalised.update(new)
         apart |= new_apart
         try:
-            r = route(costed(), settings, same_boom=penalised, apart=sorted(apart), initial=best.routes,
-                      time_limit_s=limit())
+            r = route(costed(timer.inst), settings, same_boom=penalised, apart=sorted(apart), initial=best.routes,
+                      time_limit_s=clock.limit())
         except RoutingFailed as e:  # the fed-back pairs left the first-solution heuristic no routes: keep the best
             stopped = f"the routing found no routes with the {len(apart)} pairs fed back ({e})"
             break
         rounds += 1
     if best is None:  # cannot happen: without a candidate the routing always runs
         raise RuntimeError("round: no candidate timeline")
-    planning_s = time.perf_counter() - t0
-    kept = seed is not None and best.routes == (seeds[seed] if seed in seeds else seed_routes(inst, seed))
+    planning_s = time.perf_counter() - clock.t0
+    seed = start.seed
+    kept = seed is not None and best.routes == (start.seeds[seed] if seed in start.seeds else seed_routes(inst, seed))
     left_out = [int(h) for h in np.flatnonzero(~inst.drillable)]
     say(f"stopped: {stopped}")
     return RoundPlan(best, left_out, lb, rounds, penalised, sorted(apart), planning_s,
-                     seed, kept, done, timer.inst, book, stopped, baselines_s)
+                     seed, kept, start.baselines, timer.inst, book, stopped, start.baselines_s)
 
 
 def _reverse_one(routes: list[list[int]], b: int) -> list[list[int]]:
