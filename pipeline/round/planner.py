@@ -11,8 +11,9 @@
    distance (``round.waits``: ``exact`` by CP-SAT, optimal for the routes; ``greedy``, the repair
    rule of :mod:`pipeline.round.timeline`, which falls back to one boom at a time; or the better);
 4. (``_conflicts_to_feed_back``) every pair of holes (i on boom a, j on boom b: where each stood, or
-   the hole it was moving to) whose conflict needed a wait is fed back (:mod:`pipeline.round.routing`: not drilled at the same
-   time while on a and b; a soft same-boom cost where one boom can drill both), and the routing
+   the hole it was moving to) whose conflict needed a wait is fed back (:mod:`pipeline.round.routing`:
+   not drilled at the same time while on a and b; a soft same-boom cost where one boom can drill both),
+   and the routing
    starts again from the best routes so far.
 
 The best conflict-free timeline (fewest conflicts left, then makespan) is kept. **Why it ends** (``_why_stop``): step 4
