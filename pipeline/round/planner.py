@@ -13,8 +13,7 @@
 4. (``_conflicts_to_feed_back``) every pair of holes (i on boom a, j on boom b: where each stood, or
    the hole it was moving to) whose conflict needed a wait is fed back (:mod:`pipeline.round.routing`:
    not drilled at the same time while on a and b; a soft same-boom cost where one boom can drill both),
-   and the routing
-   starts again from the best routes so far.
+   and the routing starts again from the best routes so far.
 
 The best conflict-free timeline (fewest conflicts left, then makespan) is kept. **Why it ends** (``_why_stop``): step 4
 runs only when the last timeline revealed a pair not yet fed back, a set that only grows and holds at
