@@ -54,7 +54,7 @@ def test_zero_errors_give_exactly_the_nominal_boom(jumbo8, safety):
     true = BoomWithErrors(jumbo8, torch.zeros(jumbo8.n_rows, 6, dtype=torch.float64))
     assert torch.equal(true.frames(q), jumbo8.frames(q))
     assert torch.equal(true.frames(q.float()), jumbo8.frames(q.float()))
-    twin = SafetyModel(true, safety.tunnel, safety.distances, safety.n_points)
+    twin = SafetyModel(true, safety.tunnel, safety.distances, safety.points_per_capsule, safety.exact)
     for kind, c in twin.clearances(q).items():
         assert torch.equal(c, safety.clearances(q)[kind])
 

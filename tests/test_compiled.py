@@ -50,7 +50,9 @@ def test_frames_pose6_and_jacobian_equal_torch_on_random_joints(boom_name):
         assert np.abs(J[:, :3] - linear.numpy()).max() <= 1e-13 * scale
 
 
-def test_clearances_and_their_gradients_equal_the_safety_model(safety):
+@pytest.mark.parametrize("exact", [True, False])
+def test_clearances_and_their_gradients_equal_the_safety_model(safety, exact):
+    safety = safety.__class__(safety.boom, safety.tunnel, safety.distances, 16, exact)
     boom = safety.boom
     bad = torch.tensor([[0.7, -0.5, 3.0, 2.5, 1.4, -1.3, 3.0, 1.0],  # feed folded back into the boom
                         [0.0, 1.1, 4.6, 0.0, -1.1, 0.0, 0.0, 3.5],  # feed up under the arch

@@ -43,7 +43,7 @@ MID_R = [r(-3), 0.0, 3.5, 0.0, 0.0, r(3), r(180), 2.5]  # R's: near y = -0.2; th
 
 @pytest.fixture(scope="module")
 def twin(safety):
-    return load_rig("twin", safety.tunnel, safety.distances, safety.n_points)
+    return load_rig("twin", safety.tunnel, safety.distances, safety.points_per_capsule)
 
 
 @pytest.fixture(scope="module")

@@ -45,7 +45,7 @@ PLANNER = PlannerSettings(iterations=20000, simplify_steps=40, seed=1)  # counts
 
 @pytest.fixture(scope="module")
 def rig(safety):
-    return load_rig("twin", safety.tunnel, safety.distances, safety.n_points)
+    return load_rig("twin", safety.tunnel, safety.distances, safety.points_per_capsule)
 
 
 @pytest.fixture(scope="module")
@@ -274,7 +274,7 @@ def test_trio_middle_boom_is_checked_against_both_neighbours(safety, limits, jum
     from pipeline.geometry.tunnel import Horseshoe
 
     trio = load_rig("trio", Horseshoe.from_config(load_group_file("tunnel", "horseshoe_wide")), safety.distances,
-                    safety.n_points)
+                    safety.points_per_capsule)
     m = trio.index("M")
     park = trio.booms[m].park
     lift = park.clone()

@@ -21,7 +21,7 @@ def wide():
 
 
 def _rig(name, safety, tunnel=None):
-    return load_rig(name, tunnel or safety.tunnel, safety.distances, safety.n_points)
+    return load_rig(name, tunnel or safety.tunnel, safety.distances, safety.points_per_capsule)
 
 
 def _random_q(boom, n, seed):
@@ -158,7 +158,7 @@ def test_bad_rig_files_name_the_file_and_the_boom(case, safety):
     node, message = BAD[case]
     with pytest.raises(ConfigError, match=message):
         spec = parse_rig(node, "conf/rig/bad.yaml")
-        build_rig(spec, rig_booms(spec), safety.tunnel, safety.distances, safety.n_points)
+        build_rig(spec, rig_booms(spec), safety.tunnel, safety.distances, safety.points_per_capsule)
 
 
 def test_every_rig_file_parses():

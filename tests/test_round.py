@@ -198,7 +198,7 @@ def test_baselines_by_side_and_nearest():
 # ---------------------------------------------------------------- real kinematics (twin)
 @pytest.fixture(scope="module")
 def twin(safety):
-    return load_rig("twin", safety.tunnel, safety.distances, safety.n_points)
+    return load_rig("twin", safety.tunnel, safety.distances, safety.points_per_capsule)
 
 
 @pytest.fixture(scope="module")

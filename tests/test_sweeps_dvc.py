@@ -127,11 +127,15 @@ def test_dvc_repro_of_the_quick_experiment_then_up_to_date_and_a_param_change_re
     # its seeds (no OR-Tools solve) and times no baselines. That cuts the stage from about 125 s to 33 s;
     # the routing and the baselines run in tests/test_round.py and tests/test_schedule.py. One torch thread
     # per stage (train too), as the other test worker runs beside it (2 cores): with two, the schedule
-    # stage's seed sweep took 38 s in CI against 8 s alone; with one, this test took 350 s against 401 s
+    # stage's seed sweep took 38 s in CI against 8 s alone; with one, this test took 350 s against 401 s.
+    # Also fewer execution draws, no torch.compile row and no per-runtime processes in the export benchmark
+    # (each is tested in its own stage's tests): the first repro took 537 s without these (16 stages, about
+    # 10 s of each only starting Python, torch and MLflow), 594 s for the test in CI.
     _run([sys.executable, "-m", "pipeline.params", *SHORT, "round.routing=false", "schedule.baselines=false",
-          "runtime.threads=1", "runtime.train_threads=1"], cwd=tmp_path)
+          "runtime.threads=1", "runtime.train_threads=1", "execution.draws=20", "export.benchmark.compile=false",
+          "export.benchmark.isolate=false"], cwd=tmp_path)
     dvc = [sys.executable, "-m", "dvc"]
-    _run([*dvc, "repro"], cwd=tmp_path)
+    _run([*dvc, "repro"], cwd=tmp_path, timeout=1500)  # a guard against a hang, not a speed test
     d = "data/tiny"
     for out in ["holes/train.parquet", "models/sikm.pt", "models/cuikm.pt", "eval/metrics.json",
                 "eval/collisions.csv", "report/README.md"]:

@@ -7,7 +7,7 @@ from pipeline.core.errors import ConfigError
 from pipeline.core.settings import coerce
 from pipeline.data.holes import HoleSampling
 from pipeline.geometry.boom_config import boom_from_config
-from pipeline.geometry.collision import SafetyDistances, SafetyModel
+from pipeline.geometry.collision import SafetyDistances, SafetyModel, capsule_settings
 from pipeline.geometry.kinematics import Boom
 from pipeline.geometry.tunnel import Horseshoe
 
@@ -22,12 +22,19 @@ def load_boom(boom) -> Boom:
 
 def build_safety(boom, tunnel_cfg, safety_cfg) -> SafetyModel:
     """The safety model of a boom in a tunnel with the configured safety distances."""
+    distances, points, exact = safety_settings(safety_cfg)
+    return SafetyModel(load_boom(boom), Horseshoe.from_config(as_dict(tunnel_cfg)), distances, points, exact)
+
+
+_CAPSULE_KEYS = ("points_per_capsule", "exact_capsules")
+
+
+def safety_settings(safety_cfg) -> tuple[SafetyDistances, int, bool]:
+    """The ``safety`` node's distances, ``points_per_capsule`` (16 when not given) and ``exact_capsules``
+    (true when not given)."""
     safety = as_dict(safety_cfg)
-    n = safety.get("points_per_capsule", 16)
-    if isinstance(n, bool) or not isinstance(n, int):
-        raise ConfigError(f"safety.points_per_capsule = {n!r}: expected an integer")
-    distances = SafetyDistances.from_config({k: v for k, v in safety.items() if k != "points_per_capsule"})
-    return SafetyModel(load_boom(boom), Horseshoe.from_config(as_dict(tunnel_cfg)), distances, n)
+    points, exact = capsule_settings(safety.get("points_per_capsule", 16), safety.get("exact_capsules", True))
+    return SafetyDistances.from_config({k: v for k, v in safety.items() if k not in _CAPSULE_KEYS}), points, exact
 
 
 def hole_sampling(holes_cfg) -> HoleSampling:

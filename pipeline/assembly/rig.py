@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 
-from pipeline.assembly.build import load_boom
+from pipeline.assembly.build import load_boom, safety_settings
 from pipeline.core.config import as_dict, load_group_file
 from pipeline.core.errors import ConfigError
 from pipeline.geometry.collision import SafetyDistances
@@ -115,15 +115,6 @@ def rig_booms(spec: RigSpec, boom_cfg=None, boom_model: str | None = None, boom_
     return out
 
 
-def safety_parts(safety_cfg) -> tuple[SafetyDistances, int]:
-    """The ``safety`` node's distances and points per capsule (as :func:`pipeline.assembly.build.build_safety`)."""
-    safety = as_dict(safety_cfg)
-    n = safety.get("points_per_capsule", 16)
-    if isinstance(n, bool) or not isinstance(n, int):
-        raise ConfigError(f"safety.points_per_capsule = {n!r}: expected an integer")
-    return SafetyDistances.from_config({k: v for k, v in safety.items() if k != "points_per_capsule"}), n
-
-
 def build_rig(rig_cfg, tunnel_cfg, safety_cfg, booms: Mapping[str, Boom] | None = None, boom_cfg=None) -> Rig:
     """The rig of the ``rig`` node or name (:func:`rig_spec`), each boom with its own safety model seen from
     its base (the same tunnel and distances as :func:`pipeline.assembly.build.build_safety`). ``booms`` (rig
@@ -133,8 +124,8 @@ def build_rig(rig_cfg, tunnel_cfg, safety_cfg, booms: Mapping[str, Boom] | None 
     spec = rig_cfg if isinstance(rig_cfg, RigSpec) else rig_spec(rig_cfg)
     if booms is None:
         booms = rig_booms(spec, boom_cfg)
-    distances, n = safety_parts(safety_cfg)
-    return place_booms(spec, booms, Horseshoe.from_config(as_dict(tunnel_cfg)), distances, n)
+    distances, n, exact = safety_settings(safety_cfg)
+    return place_booms(spec, booms, Horseshoe.from_config(as_dict(tunnel_cfg)), distances, n, exact)
 
 
 def composed_rig(cfg, load_model: ModelLoader | None = None) -> Rig:
@@ -148,8 +139,9 @@ def composed_rig(cfg, load_model: ModelLoader | None = None) -> Rig:
 
 
 def load_rig(name: str, tunnel: Horseshoe, distances: SafetyDistances, points_per_capsule: int = 16,
-             booms: Mapping[str, Boom] | None = None) -> Rig:
+             booms: Mapping[str, Boom] | None = None, exact: bool = True) -> Rig:
     """The rig ``conf/rig/<name>.yaml`` in ``tunnel`` with the given safety distances (a safety model's
-    ``safety.tunnel, safety.distances, safety.n_points``), its booms ``booms`` or their kinds' configs."""
+    ``safety.tunnel, safety.distances, safety.points_per_capsule``, ``safety.exact``), its booms ``booms`` or their
+    kinds' configs."""
     spec = rig_spec(name)
-    return place_booms(spec, rig_booms(spec) if booms is None else booms, tunnel, distances, points_per_capsule)
+    return place_booms(spec, rig_booms(spec) if booms is None else booms, tunnel, distances, points_per_capsule, exact)

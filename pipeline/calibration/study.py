@@ -160,7 +160,7 @@ def residual_errors(true_boom: BoomWithErrors, safety: SafetyModel, q: torch.Ten
     with torch.no_grad():
         frames = true_boom.frames(q)
         err = HoleTargets(pose, true_boom.preview_depth).errors(frames[:, true_boom.tool_index])
-        true_safety = SafetyModel(true_boom, safety.tunnel, safety.distances, safety.n_points)
+        true_safety = SafetyModel(true_boom, safety.tunnel, safety.distances, safety.points_per_capsule, safety.exact)
         clear = true_safety.clearances_from_frames(frames)
     collar, direction = 1e3 * err["position"], torch.rad2deg(err["orientation"])
     violated = torch.stack([c < 0 for c in clear.values()]).any(0)

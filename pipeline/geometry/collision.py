@@ -20,6 +20,19 @@ from pipeline.geometry.rotations import safe_norm
 from pipeline.geometry.tunnel import SURFACES, Horseshoe
 
 SAFETY_KINDS = ("self", *SURFACES)
+# The candidate points of the exact capsule-tunnel check (see :meth:`SafetyModel._fractions`).
+EXACT_CANDIDATES = 6
+
+
+def capsule_settings(points_per_capsule, exact_capsules) -> tuple[int, bool]:
+    """``safety.points_per_capsule`` (a whole number >= 2) and ``safety.exact_capsules`` (a boolean), validated."""
+    if isinstance(points_per_capsule, bool) or not isinstance(points_per_capsule, int):
+        raise ConfigError(f"safety.points_per_capsule = {points_per_capsule!r}: expected an integer")
+    if points_per_capsule < 2:
+        raise ConfigError(f"safety.points_per_capsule = {points_per_capsule!r}: need at least 2")
+    if not isinstance(exact_capsules, bool):
+        raise ConfigError(f"safety.exact_capsules = {exact_capsules!r}: expected true or false")
+    return points_per_capsule, exact_capsules
 
 
 def segment_distance(p1: torch.Tensor, q1: torch.Tensor, p2: torch.Tensor, q2: torch.Tensor, eps: float = 1e-12):
@@ -85,17 +98,24 @@ class SafetyDistances:
 class SafetyModel:
     """Clearances of boom configurations in a tunnel, batched over configurations.
 
-    Every capsule is sampled at once: the bodies' end points come from one gather of the frames,
-    their sample points form one ``(..., bodies, points, 3)`` tensor, and the three tunnel surfaces
-    are measured in one call, so the cost does not grow with Python loops over bodies or kinds."""
+    Every capsule is checked at once: the bodies' end points come from one gather of the frames,
+    their checked points form one ``(..., bodies, points, 3)`` tensor, and the three tunnel surfaces
+    are measured in one call, so the cost does not grow with Python loops over bodies or kinds.
 
-    def __init__(self, boom: Boom, tunnel: Horseshoe, distances: SafetyDistances, points_per_capsule: int = 16):
-        if points_per_capsule < 2:
-            raise ConfigError(f"safety.points_per_capsule = {points_per_capsule!r}: need at least 2")
+    ``points_per_capsule`` evenly spaced points are checked along each capsule (paper 000's way; the
+    minimum can then lie between two of them), and with ``exact`` (the default) also the
+    :data:`EXACT_CANDIDATES` points where a surface's distance can be smallest (:meth:`_fractions`):
+    the minimum over the whole axis of a capsule inside the profile. Outside it the samples keep the
+    penalty at least as deep as the sampled model's (a capsule outside fails either way)."""
+
+    def __init__(self, boom: Boom, tunnel: Horseshoe, distances: SafetyDistances, points_per_capsule: int = 16,
+                 exact: bool = True):
+        points_per_capsule, exact = capsule_settings(points_per_capsule, exact)
         if not boom.bodies:
             raise ConfigError(f"boom '{boom.name}' defines no collision bodies; the safety model needs them")
         self.boom, self.tunnel, self.distances = boom, tunnel, distances
-        self.n_points = int(points_per_capsule)
+        self.points_per_capsule, self.exact = points_per_capsule, exact
+        self.n_points = points_per_capsule + (EXACT_CANDIDATES if exact else 0)  # checked points per capsule
         bodies = list(boom.bodies.values())
         self._names = [b.name for b in bodies]
         self._end_frames = [spec.frame for b in bodies for spec in (b.start, b.end)]
@@ -107,7 +127,7 @@ class SafetyModel:
 
     def with_distances(self, distances: SafetyDistances) -> SafetyModel:
         """The same boom and tunnel with other safety distances (the training penalties')."""
-        return SafetyModel(self.boom, self.tunnel, distances, self.n_points)
+        return SafetyModel(self.boom, self.tunnel, distances, self.points_per_capsule, self.exact)
 
     def _c(self, dtype, device) -> dict[str, torch.Tensor]:
         key = (dtype, device)
@@ -117,7 +137,7 @@ class SafetyModel:
                 "frames": torch.tensor(self._end_frames, device=device), "along": t(self._end_along)[:, None],
                 "radius": t(self._radius), "skip": t(self._skip),
                 "surface": t([getattr(self.distances, k) for k in SURFACES]),
-                "t": torch.linspace(0.0, 1.0, self.n_points, dtype=dtype, device=device),
+                "t": torch.linspace(0.0, 1.0, self.points_per_capsule, dtype=dtype, device=device),
             }
         return self._consts[key]
 
@@ -127,14 +147,49 @@ class SafetyModel:
         F = frames[..., c["frames"], :3, :]
         return (F[..., 3] + c["along"] * F[..., 2]).reshape(*frames.shape[:-3], len(self._names), 2, 3)
 
+    def _fractions(self, start: torch.Tensor, axis: torch.Tensor) -> torch.Tensor:
+        """Where along the checked axis ``start + u axis`` (``u`` in [0, 1]) the tunnel distances can be
+        smallest: ``(..., bodies, EXACT_CANDIDATES)``.
+
+        Inside the profile each surface's distance, as a function of ``u``, is piecewise (cut where
+        ``z`` crosses the wall height and ``y`` crosses 0) linear (ground; wall below the wall height),
+        concave (arch above the springing line: the radius less a convex norm) or the distance to a
+        corner ``(+-width/2, wall_height)`` (wall above, arch below: convex). The smallest value is at
+        an end of a piece or where a convex piece is lowest, the corner's projection on the axis. A
+        capsule that leaves the profile has an end beyond some surface, so its clearance is negative
+        there and it fails either way. The fractions carry no gradient: at a minimum the derivative
+        along the axis is zero or the point is an end (the envelope theorem), as for a sample point."""
+        with torch.no_grad():
+            r, h = self.tunnel.half_width, self.tunnel.wall_height
+            y0, z0, dy, dz = start[..., 1], start[..., 2], axis[..., 1], axis[..., 2]
+
+            def crossing(v0, dv, level):  # where v0 + u dv = level inside (0, 1), else the start
+                ok = dv.abs() > 1e-15
+                u = (level - v0) / torch.where(ok, dv, torch.ones_like(dv))
+                return torch.where(ok & (u > 0) & (u < 1), u, torch.zeros_like(u))
+
+            dd = dy * dy + dz * dz
+            dd_ok = dd > 1e-24
+            dd_safe = torch.where(dd_ok, dd, torch.ones_like(dd))
+
+            def projection(cy):  # the axis point nearest the corner (cy, h)
+                u = ((cy - y0) * dy + (h - z0) * dz) / dd_safe
+                return torch.where(dd_ok, u.clamp(0.0, 1.0), torch.zeros_like(u))
+
+            return torch.stack([torch.zeros_like(y0), torch.ones_like(y0), crossing(z0, dz, h),
+                                crossing(y0, dy, 0.0), projection(r), projection(-r)], dim=-1)
+
     def _tunnel(self, ends: torch.Tensor, radius: torch.Tensor, skip: torch.Tensor):
-        """Clearance of every sample point to each surface ``(..., 3, bodies * points)``, the points
+        """Clearance of every checked point to each surface ``(..., 3, bodies * points)``, the points
         ``(..., bodies * points, 3)`` and where each lies between its body's ends ``(..., bodies * points)``.
-        A body's last ``skip`` metres are not sampled (the feed's front works at the face)."""
+        A body's last ``skip`` metres are not checked (the feed's front works at the face)."""
         c = self._c(ends.dtype, ends.device)
         start, axis = ends[..., 0, :], ends[..., 1, :] - ends[..., 0, :]
         keep = torch.where(skip > 0, (1.0 - skip / safe_norm(axis).clamp_min(1e-12)).clamp_min(0.0), 1.0)
-        frac = c["t"] * keep.unsqueeze(-1)
+        u = c["t"].expand(*start.shape[:-1], -1)
+        if self.exact:
+            u = torch.cat([u, self._fractions(start, keep.unsqueeze(-1) * axis)], dim=-1)
+        frac = u * keep.unsqueeze(-1)
         pts = start.unsqueeze(-2) + frac.unsqueeze(-1) * axis.unsqueeze(-2)
         dist = self.tunnel.surface_distances(pts[..., 1], pts[..., 2])
         clear = torch.stack([dist[k] for k in SURFACES], dim=-3) - radius[:, None] - c["surface"][:, None, None]

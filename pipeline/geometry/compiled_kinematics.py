@@ -92,6 +92,7 @@ class SafetyArrays:
     half_width: float
     wall_height: float
     t: np.ndarray  # (points,) sample fractions along each capsule, the same values as SafetyModel's
+    exact: bool  # also the exact check's candidate points (SafetyModel.exact)
 
     @classmethod
     def from_model(cls, safety: SafetyModel) -> SafetyArrays:
@@ -109,12 +110,13 @@ class SafetyArrays:
             half_width=float(safety.tunnel.half_width),
             wall_height=float(safety.tunnel.wall_height),
             # torch's linspace, not numpy's: the two may differ in the last bit
-            t=torch.linspace(0.0, 1.0, safety.n_points, dtype=torch.float64).numpy().copy(),
+            t=torch.linspace(0.0, 1.0, safety.points_per_capsule, dtype=torch.float64).numpy().copy(),
+            exact=bool(safety.exact),
         )
 
     def args(self) -> tuple:
         return (self.end_frame, self.end_along, self.radius, self.skip, self.pairs, self.d_self, self.surface,
-                self.half_width, self.wall_height, self.t)
+                self.half_width, self.wall_height, self.t, self.exact)
 
 
 assert SAFETY_KINDS == ("self", "wall", "ground", "arch")  # the kernels' clearance order
@@ -241,6 +243,35 @@ def surface_gradient(kind, y, z, r, h):
 
 
 # ---------------------------------------------------------------------------------------------- clearances
+EXACT_CANDIDATES = 6  # as pipeline.geometry.collision.EXACT_CANDIDATES
+
+
+@njit(cache=True)
+def _crossing(v0, dv, level):
+    if abs(dv) > 1e-15:
+        u = (level - v0) / dv
+        if 0.0 < u < 1.0:
+            return u
+    return 0.0
+
+
+@njit(cache=True)
+def _projection(cy, y0, z0, dy, dz, h):
+    dd = dy * dy + dz * dz
+    if dd > 1e-24:
+        return min(max(((cy - y0) * dy + (h - z0) * dz) / dd, 0.0), 1.0)
+    return 0.0
+
+
+@njit(cache=True)
+def exact_fractions_into(y0, z0, dy, dz, r, h, U):
+    """The exact check's candidate fractions along the checked axis ``(y0, z0) + u (dy, dz)`` into
+    ``U (6,)``, in the order and by the rule of :meth:`SafetyModel._fractions`."""
+    U[0], U[1] = 0.0, 1.0
+    U[2], U[3] = _crossing(z0, dz, h), _crossing(y0, dy, 0.0)
+    U[4], U[5] = _projection(r, y0, z0, dy, dz, h), _projection(-r, y0, z0, dy, dz, h)
+
+
 @njit(cache=True)
 def _ends(F, end_frame, end_along, E):
     for e in range(end_frame.shape[0]):
@@ -290,13 +321,16 @@ def segment_distance(p1, q1, p2, q2):
 
 @njit(cache=True)
 def clearances_into(F, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t,
-                    out, arg, frac_at, E):
+                    exact, out, arg, frac_at, E):
     """The four clearances (self, wall, ground, arch; m, negative = violated) of frames ``F`` into
     ``out (4,)``, as :meth:`SafetyModel.clearances_from_frames`. Also where each tunnel minimum lies:
     ``arg[k]`` the sample index (body * points + point) and ``frac_at[k]`` its fraction along its
     body; for self, ``arg`` holds the pair index and ``frac_at`` is unused (gradients need these).
-    ``E (2 * bodies, 3)``: scratch, left holding the capsules' end points."""
-    nb, P = radius.shape[0], t.shape[0]
+    ``E (2 * bodies, 3)``: scratch, left holding the capsules' end points. ``exact``: after the samples
+    ``t``, the exact check's candidate points (:func:`exact_fractions_into`), as :class:`SafetyModel`."""
+    S = t.shape[0]
+    nb, P = radius.shape[0], S + (EXACT_CANDIDATES if exact else 0)
+    U = np.zeros(EXACT_CANDIDATES)
     _ends(F, end_frame, end_along, E)
     for k in range(3):
         out[1 + k] = np.inf
@@ -306,8 +340,10 @@ def clearances_into(F, end_frame, end_along, radius, skip, pairs, d_self, surfac
         keep = 1.0
         if skip[b] > 0:
             keep = max(1.0 - skip[b] / max(math.sqrt(a0 * a0 + a1 * a1 + a2 * a2), 1e-12), 0.0)
+        if exact:
+            exact_fractions_into(s1, s2, keep * a1, keep * a2, half_width, wall_height, U)
         for i in range(P):
-            fr = t[i] * keep
+            fr = (t[i] if i < S else U[i - S]) * keep
             y, z = s1 + fr * a1, s2 + fr * a2
             w, g, ar = surface_distances(y, z, half_width, wall_height)
             vals = (w - radius[b] - surface[0], g - radius[b] - surface[1], ar - radius[b] - surface[2])
@@ -327,17 +363,17 @@ def clearances_into(F, end_frame, end_along, radius, skip, pairs, d_self, surfac
 
 @njit(cache=True)
 def clearance_jacobians_into(F, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height,
-                             t, axis_frame, along_x, revolute, moves, out, G):
+                             t, exact, axis_frame, along_x, revolute, moves, out, G):
     """The clearances into ``out (4,)`` and their gradients with respect to the joints into ``G (4, n)``
     (:meth:`SafetyModel.clearances_with_jacobians`): a tunnel clearance's gradient is the surface
     normal at its minimising sample point times that point's Jacobian, self's the unit vector between
     the closest points times their relative Jacobian."""
-    nb, P, n = radius.shape[0], t.shape[0], axis_frame.shape[0]
+    nb, P, n = radius.shape[0], t.shape[0] + (EXACT_CANDIDATES if exact else 0), axis_frame.shape[0]
     arg = np.empty(4, dtype=np.int64)
     frac = np.empty(4)
     E = np.empty((2 * nb, 3))
     clearances_into(F, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t,
-                    out, arg, frac, E)
+                    exact, out, arg, frac, E)
     J0, J1 = np.empty((3, n)), np.empty((3, n))
     for k in range(1, 4):
         b = arg[k] // P
@@ -390,13 +426,13 @@ def batch_pose6_jacobian(Q, rows, cos_alpha, sin_alpha, modified, joint_row, joi
 
 @njit(cache=True)
 def batch_clearances(Fs, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t,
-                     axis_frame, along_x, revolute, moves):
+                     exact, axis_frame, along_x, revolute, moves):
     """Clearances ``(B, 4)`` and their gradients ``(B, 4, n)`` of frames ``Fs (B, R + 2, 4, 4)``."""
     B, n = Fs.shape[0], axis_frame.shape[0]
     C, G = np.empty((B, 4)), np.empty((B, 4, n))
     for b in range(B):
         clearance_jacobians_into(Fs[b], end_frame, end_along, radius, skip, pairs, d_self, surface, half_width,
-                                 wall_height, t, axis_frame, along_x, revolute, moves, C[b], G[b])
+                                 wall_height, t, exact, axis_frame, along_x, revolute, moves, C[b], G[b])
     return C, G
 
 

@@ -195,7 +195,7 @@ def _park(m: MountSettings, boom: Boom, where: str) -> torch.Tensor:
 
 
 def build_rig(spec: RigSpec, booms: Mapping[str, Boom], tunnel: Horseshoe, distances: SafetyDistances,
-              points_per_capsule: int = 16) -> Rig:
+              points_per_capsule: int = 16, exact: bool = True) -> Rig:
     """Place each boom of ``spec`` (``booms``: boom name in the rig -> its :class:`Boom`, of the kind its
     ``boom:`` names) and check the rig: every base inside the tunnel profile, every park clear of the
     boom itself and of the tunnel (seen from its base), and every two parks at least ``d_boom`` apart.
@@ -214,7 +214,7 @@ def build_rig(spec: RigSpec, booms: Mapping[str, Boom], tunnel: Horseshoe, dista
             raise ConfigError(f"{where}.base = {list(m.base)!r}: outside the tunnel profile (|y| <= "
                               f"{tunnel.half_width} m at the walls, floor z = 0, crown z = {tunnel.crown} m)")
         mounted = MountedBoom(m.name, boom, m.base, _park(m, boom, where),
-                              SafetyModel(boom, tunnel, distances, points_per_capsule))
+                              SafetyModel(boom, tunnel, distances, points_per_capsule, exact))
         clear = mounted.clearances(mounted.park)
         broken = {k: round(float(clear[k]), 4) for k in SAFETY_KINDS if float(clear[k]) < 0}
         if broken:
