@@ -22,11 +22,18 @@ import numpy as np
 import torch
 from numba import njit
 
+from pipeline.core.errors import InputError
 from pipeline.geometry.collision import SAFETY_KINDS, SafetyModel
 from pipeline.geometry.kinematics import JOINT_PARAMS, Boom
 from pipeline.geometry.tunnel import SURFACES
 
 EPS64 = float(np.finfo(np.float64).eps)
+
+
+def nominal_chain(boom: Boom) -> bool:
+    """Whether ``boom``'s frames are :class:`Boom`'s own D-H chain (no override of its link
+    transforms, such as a calibrated boom's error twists): what the kernels compute."""
+    return type(boom).link_transforms is Boom.link_transforms and type(boom).frames is Boom.frames
 
 
 @dataclass(frozen=True)
@@ -49,6 +56,10 @@ class ChainArrays:
 
     @classmethod
     def from_boom(cls, boom: Boom) -> ChainArrays:
+        if not nominal_chain(boom):
+            raise InputError(f"boom '{boom.name}' ({type(boom).__name__}): its frames are not the D-H chain of its "
+                             "rows (a calibrated model's error twists?), and the compiled kernels know only that "
+                             "chain; use the torch solver (hybrid) for it")
         modified = boom.convention == "modified"
         frame = [j.row if (j.param == "a") == modified else j.row + 1 for j in boom.joints]
         rows = np.array(boom.rows, dtype=np.float64).reshape(boom.n_rows, 4)

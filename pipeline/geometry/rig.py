@@ -29,6 +29,7 @@ from pipeline.core.settings import parse, rule
 from pipeline.geometry.boom_config import reject_unknown
 from pipeline.geometry.boom_pair import BoomPair
 from pipeline.geometry.collision import SAFETY_KINDS, SafetyDistances, SafetyModel
+from pipeline.geometry.compiled_rig import CompiledBoom, kernel_ready, pair_clearance
 from pipeline.geometry.kinematics import Boom
 from pipeline.geometry.tunnel import Horseshoe
 
@@ -112,6 +113,8 @@ class MountedBoom:
         self.base = tuple(float(v) for v in base)
         self.park = park  # (n_joints,) float64, SI units
         self._base_t: dict = {}
+        self._kernel: CompiledBoom | None | bool = False  # False: not built yet
+        self.compiled = True  # False keeps every clearance on torch (the side-by-side benchmark's baseline)
 
     def _offset(self, dtype, device) -> torch.Tensor:
         key = (dtype, device)
@@ -131,8 +134,21 @@ class MountedBoom:
         """Collar point and drilling direction in the rig frame."""
         return self.boom.tool_pose_from_frames(self.frames(q))
 
+    @property
+    def kernel(self) -> CompiledBoom | None:
+        """This boom for the compiled kernels (:mod:`pipeline.geometry.compiled_rig`), built on first use;
+        ``None`` for a calibrated boom, whose clearances stay on torch, or with :attr:`compiled` off."""
+        if not self.compiled:
+            return None
+        if self._kernel is False:
+            self._kernel = CompiledBoom.for_boom(self.boom, self.base, self.safety)
+        return self._kernel
+
     def clearances(self, q: torch.Tensor) -> dict[str, torch.Tensor]:
-        """Self, wall, ground and arch clearances (m) of this boom at ``q``, seen from its base."""
+        """Self, wall, ground and arch clearances (m) of this boom at ``q``, seen from its base (float64
+        joints on the CPU without gradients: the compiled kernel, equal to the torch model)."""
+        if self.kernel is not None and kernel_ready(q):
+            return self.kernel.clearances(q)
         return self.safety.clearances_from_frames(self.frames(q))
 
     def clearances_with_jacobians(self, q: torch.Tensor):
@@ -167,7 +183,11 @@ class Rig:
         """Boom-boom clearance (m, less d_boom) of boom ``a`` at ``qa`` and boom ``b`` at ``qb``."""
         if a > b:
             a, qa, b, qb = b, qb, a, qa
-        return self.pair(a, b).clearance(self.booms[a].frames(qa), self.booms[b].frames(qb))
+        pair = self.pair(a, b)
+        ka, kb = self.booms[a].kernel, self.booms[b].kernel
+        if ka is not None and kb is not None and kernel_ready(qa, qb):  # the same numbers, compiled
+            return pair_clearance(ka, qa, kb, qb, self.d_boom)
+        return pair.clearance(self.booms[a].frames(qa), self.booms[b].frames(qb))
 
     def boom_clearance_with_jacobians(self, a: int, qa: torch.Tensor, b: int, qb: torch.Tensor):
         """:meth:`boom_clearance` and its gradients with respect to ``qa`` and ``qb`` (in that order)."""

@@ -173,14 +173,11 @@ def others_of(rig: Rig, index: int, others: Mapping | None) -> dict[int, Timed]:
 def clearances_at(rig: Rig, index: int, q: torch.Tensor, others: Mapping[int, torch.Tensor]) -> dict[str, torch.Tensor]:
     """Per instant ``(K,)``: self, wall, ground, arch of boom ``index`` at ``q (K, n)``, and its
     boom-boom clearance ``"boom <name>"`` to each other boom ``j`` at ``others[j] (K, n)`` (or
-    ``(1, n)``, standing). One batch: each boom's frames once, every clearance from them."""
-    me = rig.booms[index]
-    frames = me.frames(q)
-    out = dict(me.safety.clearances_from_frames(frames))
+    ``(1, n)``, standing). One batch per boom and kind (the compiled kernels where they apply:
+    :meth:`MountedBoom.clearances`, :meth:`Rig.boom_clearance`)."""
+    out = dict(rig.booms[index].clearances(q))
     for j, qj in others.items():
-        fj = rig.booms[j].frames(qj)
-        a, b = (frames, fj) if index < j else (fj, frames)
-        out[f"boom {rig.names[j]}"] = rig.pair(min(index, j), max(index, j)).clearance(a, b).expand(q.shape[0])
+        out[f"boom {rig.names[j]}"] = rig.boom_clearance(index, q, j, qj).expand(q.shape[0])
     return out
 
 
@@ -326,8 +323,7 @@ def certify_straight_moves(rig: Rig, index: int, qa: torch.Tensor, qb: torch.Ten
     if not len(todo) or refinements < 1:
         return out
     me = rig.booms[index]
-    standing = {j: o.q[:1] for j, o in others_of(rig, index, others).items()}
-    frames_o = {f"boom {rig.names[j]}": (j, rig.booms[j].frames(q)) for j, q in standing.items()}
+    standing = {f"boom {rig.names[j]}": (j, o.q[:1]) for j, o in others_of(rig, index, others).items()}
     a, step = qa[todo].to(torch.float64), (qb[todo] - qa[todo]).to(torch.float64)
     R = travel(step, lever_arms(me.boom))
     n = torch.ceil(R / resolution).clamp_min(1).long()
@@ -337,13 +333,12 @@ def certify_straight_moves(rig: Rig, index: int, qa: torch.Tensor, qb: torch.Ten
 
     def values(w: torch.Tensor, x: torch.Tensor) -> dict[str, torch.Tensor]:
         with torch.inference_mode():
-            f = me.frames(a[w] + x[:, None] * step[w])
-            c = me.safety.clearances_from_frames(f)
+            q = a[w] + x[:, None] * step[w]
+            c = me.clearances(q)
             out = {"self": c["self"], "tunnel": torch.stack([c[k] for k in SURFACES]).amin(0)}
-            for key, (j, fj) in frames_o.items():
+            for key, (j, qj) in standing.items():
                 if key in kinds:
-                    pair = rig.pair(min(index, j), max(index, j))
-                    out[key] = pair.clearance(f, fj) if index < j else pair.clearance(fj, f)
+                    out[key] = rig.boom_clearance(index, q, j, qj)
         return {k: v for k, v in out.items() if k in kinds}
 
     vals = values(which, s)
@@ -385,7 +380,6 @@ def check_straight_moves(rig: Rig, index: int, qa: torch.Tensor, qb: torch.Tenso
     chunk in one call, the per-move minima by a scatter (no loop over moves)."""
     me = rig.booms[index]
     standing = {j: o.q[:1] for j, o in others_of(rig, index, others).items()}
-    frames_o = {j: rig.booms[j].frames(q) for j, q in standing.items()}
     qa, qb = qa.to(torch.float64), qb.to(torch.float64)
     step = qb - qa
     M = qa.shape[0]
@@ -407,15 +401,13 @@ def check_straight_moves(rig: Rig, index: int, qa: torch.Tensor, qb: torch.Tenso
         s = k.to(torch.float64) / n[which].to(torch.float64)
         q = qa[which] + s[:, None] * step[which]
         with torch.inference_mode():
-            f = me.frames(q)
             values = {}
             if not boom_only:
-                c = me.safety.clearances_from_frames(f)
+                c = me.clearances(q)
                 values["self"] = c["self"]
                 values["tunnel"] = torch.stack([c[k] for k in SURFACES]).amin(0)
-            for j, fj in frames_o.items():
-                a, b = (f, fj) if index < j else (fj, f)
-                values[f"boom {rig.names[j]}"] = rig.pair(min(index, j), max(index, j)).clearance(a, b)
+            for j, qj in standing.items():
+                values[f"boom {rig.names[j]}"] = rig.boom_clearance(index, q, j, qj)
         same = which[1:] == which[:-1]  # consecutive samples of one move: an interval
         for key, x in values.items():
             least[key][lo:hi] = torch.full((hi - lo,), math.inf, dtype=torch.float64).scatter_reduce(

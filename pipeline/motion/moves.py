@@ -243,7 +243,6 @@ class _Validity:
         self.standing = {j: o.q for j, o in timed.items() if o.t.shape[0] == 1}
         self.sweeps = {j: o.sweep(lever_arms(rig.booms[j].boom), sweep_step, t0)
                        for j, o in timed.items() if o.t.shape[0] > 1}
-        self.frames = {j: rig.booms[j].frames(q) for j, q in self.sweeps.items()}
 
     def slack(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Each clearance less its margin ``(K, C)`` and, per column ``(C,)``, how many times this
@@ -252,13 +251,9 @@ class _Validity:
         values = clearances_at(self.rig, self.index, q, self.standing)
         cols = [v - self.margin[kind_of(k)] for k, v in values.items()]
         drift = [2.0 if k == "self" else 1.0 for k in values]
-        if self.sweeps:
-            mine = self.rig.booms[self.index].frames(q)[:, None]  # (K, 1, F, 4, 4) against (1, M, ...)
-            for j, fj in self.frames.items():
-                a, b = (mine, fj[None]) if self.index < j else (fj[None], mine)
-                pair = self.rig.pair(min(self.index, j), max(self.index, j))
-                cols.append(pair.clearance(a, b).amin(-1) - self.sweep_margin)
-                drift.append(1.0)
+        for j, sweep in self.sweeps.items():  # (K, 1, n) against every sample of the sweep (1, M, n)
+            cols.append(self.rig.boom_clearance(self.index, q[:, None], j, sweep[None]).amin(-1) - self.sweep_margin)
+            drift.append(1.0)
         return torch.stack(cols, -1), torch.tensor(drift, dtype=torch.float64)
 
     def __call__(self, q: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,125 @@
+"""The compiled rig clearances held to the torch ones: each mounted boom's four clearances (the safety
+model on rig-frame frames) and the boom-boom clearance (BoomPair), on random joints of every boom of
+`twin` and `trio`, both signs, broadcast batches, either order of the booms, NaN joints; and a
+calibrated boom, which the kernels do not know, kept on torch. No timing here."""
+
+import math
+
+import pytest
+import torch
+
+from pipeline.assembly.rig import load_rig, rig_booms, rig_spec
+from pipeline.calibration.error_model import BoomWithErrors, ErrorLevel, draw_errors
+from pipeline.core.config import load_group_file
+from pipeline.core.errors import InputError
+from pipeline.geometry.collision import SAFETY_KINDS
+from pipeline.geometry.compiled_kinematics import ChainArrays
+from pipeline.geometry.compiled_rig import pair_clearance
+from pipeline.geometry.tunnel import Horseshoe
+
+D = torch.float64
+
+
+def _torch_clearance(rig, a, qa, b, qb):
+    """BoomPair's clearance of the rig-frame frames: the path the kernel replaces."""
+    if a > b:
+        a, qa, b, qb = b, qb, a, qa
+    return rig.pair(a, b).clearance(rig.booms[a].frames(qa), rig.booms[b].frames(qb))
+
+
+def _joints(boom, n, seed):
+    g = torch.Generator().manual_seed(seed)
+    lo, hi = boom.limits(D)
+    return boom.with_locks(lo + (hi - lo) * torch.rand(n, boom.n_joints, generator=g, dtype=D))
+
+
+@pytest.fixture(scope="module")
+def rigs(safety):
+    wide = Horseshoe.from_config(load_group_file("tunnel", "horseshoe_wide"))
+    return {"twin": load_rig("twin", safety.tunnel, safety.distances, safety.points_per_capsule),
+            "trio": load_rig("trio", wide, safety.distances, safety.points_per_capsule)}
+
+
+@pytest.mark.parametrize("name", ["twin", "trio"])
+def test_equals_the_torch_pair_on_random_joints(rigs, name):
+    rig = rigs[name]
+    for a in range(len(rig)):
+        for b in range(a + 1, len(rig)):
+            qa, qb = _joints(rig.booms[a].boom, 2000, 10 * a + b), _joints(rig.booms[b].boom, 2000, 100 + a + b)
+            fast, slow = rig.boom_clearance(a, qa, b, qb), _torch_clearance(rig, a, qa, b, qb)
+            assert fast.shape == slow.shape == (2000,) and fast.dtype == D
+            assert (slow < 0).any() and (slow > 0).any()  # overlapping and clear pairs both in the sample
+            assert (fast - slow).abs().max() <= 1e-12
+            assert torch.equal(fast < 0, slow < 0)
+            # the other order of the booms gives the same numbers
+            assert torch.equal(rig.boom_clearance(b, qb, a, qa), fast)
+
+
+@pytest.mark.parametrize("name", ["twin", "trio"])
+def test_each_boom_s_clearances_equal_the_safety_model_from_its_base(rigs, name):
+    rig = rigs[name]
+    for i, m in enumerate(rig.booms):
+        q = _joints(m.boom, 2000, 7 + i)
+        fast, slow = m.clearances(q), m.safety.clearances_from_frames(m.frames(q))
+        for k in SAFETY_KINDS:
+            assert fast[k].shape == (2000,)
+            assert (fast[k] - slow[k]).abs().max() <= 1e-12, (m.name, k)
+            assert torch.equal(fast[k] < 0, slow[k] < 0)
+        assert any(bool((slow[k] < 0).any()) for k in SAFETY_KINDS)  # violations in the sample too
+
+
+def test_joints_that_are_not_finite_are_never_clear(rigs):
+    rig = rigs["twin"]
+    qa, qb = _joints(rig.booms[0].boom, 4, 8), _joints(rig.booms[1].boom, 4, 9)
+    qa[1, 3], qb[2, 0] = float("nan"), float("inf")
+    c, slow = rig.boom_clearance(0, qa, 1, qb), _torch_clearance(rig, 0, qa, 1, qb)
+    assert c[1] == c[2] == -math.inf and torch.equal(c[[0, 3]], slow[[0, 3]])
+    own, torch_own = rig.booms[0].clearances(qa), rig.booms[0].safety.clearances_from_frames(rig.booms[0].frames(qa))
+    for k in SAFETY_KINDS:
+        assert own[k][1] == -math.inf and not bool(torch_own[k][1] >= 0)  # torch: NaN or negative, by kind
+        assert torch.equal(own[k][[0, 2, 3]], torch_own[k][[0, 2, 3]])
+
+
+def test_broadcast_batches_as_the_oracle_asks(rigs):
+    rig = rigs["twin"]
+    qa, qb = _joints(rig.booms[0].boom, 30, 1), _joints(rig.booms[1].boom, 40, 2)
+    grid = rig.boom_clearance(0, qa[:, None, :], 1, qb[None, :, :])  # every standing pairing at once
+    assert grid.shape == (30, 40)
+    assert (grid - _torch_clearance(rig, 0, qa[:, None, :], 1, qb[None, :, :])).abs().max() <= 1e-12
+    one = rig.boom_clearance(0, qa, 1, qb[:1])  # one boom standing against many instants of the other
+    assert one.shape == (30,) and torch.equal(one, grid[:, 0])
+
+
+def test_gradients_and_float32_take_torch(rigs):
+    rig = rigs["twin"]
+    qa, qb = _joints(rig.booms[0].boom, 5, 3), _joints(rig.booms[1].boom, 5, 4)
+    c = rig.boom_clearance(0, qa.clone().requires_grad_(True), 1, qb)
+    assert c.grad_fn is not None  # differentiable: the torch path
+    assert rig.boom_clearance(0, qa.float(), 1, qb.float()).dtype == torch.float32
+
+
+def test_a_calibrated_boom_is_not_given_to_the_kernels(safety, rigs):
+    spec = rig_spec("twin")
+    booms = dict(rig_booms(spec))
+    nominal = booms["L"]
+    booms["L"] = BoomWithErrors(nominal, draw_errors(nominal, ErrorLevel(0.5, 0.5, 20.0), seed=0))
+    rig = load_rig("twin", safety.tunnel, safety.distances, safety.points_per_capsule, booms=booms)
+    qa, qb = _joints(nominal, 500, 5), _joints(booms["R"], 500, 6)
+    c = rig.boom_clearance(0, qa, 1, qb)
+    assert rig.booms[0].kernel is None and rig.booms[1].kernel is not None
+    own = rig.booms[0].clearances(qa)
+    torch_own = rig.booms[0].safety.clearances_from_frames(rig.booms[0].frames(qa))
+    assert all(torch.equal(own[k], torch_own[k]) for k in SAFETY_KINDS)
+    assert torch.equal(c, _torch_clearance(rig, 0, qa, 1, qb))  # the calibrated chain, through torch
+    assert (c - rigs["twin"].boom_clearance(0, qa, 1, qb)).abs().max() > 1e-3  # which the nominal one is not
+    with pytest.raises(InputError, match="boom 'jumbo8' \\(BoomWithErrors\\).*compiled kernels know only"):
+        ChainArrays.from_boom(booms["L"])
+
+
+def test_bad_joint_shapes_are_named(rigs):
+    rig = rigs["twin"]
+    ka, kb = rig.booms[0].kernel, rig.booms[1].kernel
+    with pytest.raises(InputError, match="boom b's joints have shape \\(4, 7\\), expected \\(..., 8\\)"):
+        pair_clearance(ka, torch.zeros(4, 8, dtype=D), kb, torch.zeros(4, 7, dtype=D), 0.3)
+    with pytest.raises(InputError, match="boom 'jumbo8''s joints have shape \\(3,\\)"):
+        ka.clearances(torch.zeros(3, dtype=D))
