@@ -145,12 +145,12 @@ def least_squares(fun: Residuals, x0: torch.Tensor, *, jac: Jacobian | None = No
     """
     if max_trials is None and max_steps is None:
         raise ConfigError("least squares: give max_trials or max_steps (else a row might never stop)")
-    B, n, dtype = x0.shape[0], x0.shape[-1], x0.dtype
+    B, n, dtype, device = x0.shape[0], x0.shape[-1], x0.dtype, x0.device  # every counter beside the rows
     x_out = x0.clone()
-    trials = torch.zeros(B, dtype=torch.long)
-    steps = torch.zeros(B, dtype=torch.long)
-    jacobians = torch.zeros(B, dtype=torch.long)
-    idx = torch.arange(B)
+    trials = torch.zeros(B, dtype=torch.long, device=device)
+    steps = torch.zeros(B, dtype=torch.long, device=device)
+    jacobians = torch.zeros(B, dtype=torch.long, device=device)
+    idx = torch.arange(B, device=device)
     x = x0
     if initial is not None:
         ev = initial
@@ -161,10 +161,10 @@ def least_squares(fun: Residuals, x0: torch.Tensor, *, jac: Jacobian | None = No
     c_out = c.clone()
     # counters of the rows still running (compacted with them): every running row makes one trial per
     # pass, so its trials are the pass count; accepted steps and Jacobians differ per row
-    n_steps = torch.zeros(B, dtype=torch.long)
-    n_jac = torch.full((B,), int(initial is None and ev.J is not None), dtype=torch.long)
-    lam = torch.full((B,), damping.initial, dtype=dtype)
-    eye = torch.eye(n, dtype=dtype)
+    n_steps = torch.zeros(B, dtype=torch.long, device=device)
+    n_jac = torch.full((B,), int(initial is None and ev.J is not None), dtype=torch.long, device=device)
+    lam = torch.full((B,), damping.initial, dtype=dtype, device=device)
+    eye = torch.eye(n, dtype=dtype, device=device)
     floor = damping.floor * eye
     costs, accepted = [], []
     stopped = None  # rows a stopping rule of the last step ended (ftol, xtol, give_up)
@@ -187,11 +187,11 @@ def least_squares(fun: Residuals, x0: torch.Tensor, *, jac: Jacobian | None = No
             over = n_steps >= max_steps
             fin = over if fin is None else fin | over
         if groups is not None and finished is not None and not out_of_budget and finished.any():
-            served = torch.zeros(int(groups.max()) + 1, dtype=torch.bool)
+            served = torch.zeros(int(groups.max()) + 1, dtype=torch.bool, device=device)
             served[groups[idx[finished]]] = True
             fin = fin | served[groups[idx]]
         if out_of_budget:
-            fin = torch.ones(len(idx), dtype=torch.bool)
+            fin = torch.ones(len(idx), dtype=torch.bool, device=device)
         if fin is not None and fin.any():
             rows = idx[fin]
             x_out[rows], c_out[rows] = x[fin], c[fin]
@@ -233,7 +233,7 @@ def least_squares(fun: Residuals, x0: torch.Tensor, *, jac: Jacobian | None = No
         if may_stop:
             stopped |= ~better & (lam > damping.give_up)
         if record:
-            full, acc = c_out.clone(), torch.zeros(B, dtype=torch.bool)
+            full, acc = c_out.clone(), torch.zeros(B, dtype=torch.bool, device=device)
             full[idx], acc[idx] = c, better
             costs.append(full)
             accepted.append(acc)

@@ -220,5 +220,5 @@ class NetworkSolver(Solver):
         if not isinstance(targets, HoleTargets):
             raise InputError(f"{self.name}: a network trained on hole poses needs HoleTargets")
         param = next(self.model.parameters())
-        q = self.model(targets.pose.to(param)).double().cpu()
+        q = self.model(targets.pose.to(param)).double().to(targets.pose.device)  # where the holes are
         return q, torch.ones(len(targets), dtype=torch.long)

@@ -148,7 +148,7 @@ class HybridSolver(Solver):
 
     def _frames(self, q: torch.Tensor) -> torch.Tensor:
         frames = self.boom.frames(q)
-        return frames if self.base is None else translate_frames(frames, self.base.to(frames.dtype))
+        return frames if self.base is None else translate_frames(frames, self.base.to(frames))
 
     # ------------------------------------------------------------------ one LM run per start
     def _clearances(self, frames: torch.Tensor, others: Sequence = ()) -> torch.Tensor:
@@ -173,7 +173,7 @@ class HybridSolver(Solver):
         J = self.boom.pose6_jacobian(frames)[..., self.space.free]
         hole = 0.5 * (r[:, :3].norm(dim=-1) + r[:, 3:].norm(dim=-1))
         if c_prev is None:
-            unmeasured = torch.full((len(x), len(SAFETY_KINDS) + len(others)), math.nan, dtype=r.dtype)
+            unmeasured = torch.full((len(x), len(SAFETY_KINDS) + len(others)), math.nan, dtype=r.dtype, device=r.device)
             return r, J, hole, unmeasured, torch.zeros_like(hole, dtype=torch.bool)
         fresh = c_prev.min(dim=-1).values < s.guard
         c = c_prev.clone()
@@ -182,7 +182,7 @@ class HybridSolver(Solver):
             c[near] = self._clearances(frames[near], [(p, f[near]) for p, f in others])
         active = c < s.margin
         w = s.clearance_weight * active.to(c.dtype)
-        G = torch.zeros(*c.shape, n, dtype=c.dtype)
+        G = torch.zeros(*c.shape, n, dtype=c.dtype, device=c.device)
         rows = active.any(dim=-1).nonzero().flatten()
         if len(rows):
             _, grads = self.safety.clearances_with_jacobians(frames[rows])
@@ -205,7 +205,8 @@ class HybridSolver(Solver):
         max_iters = s.max_iters if max_iters is None else max_iters
         stop_tol = 1e-2 * s.tol_mm / 1000  # iterate well below the status tolerance: converged, not borderline
         tgt = target.double()
-        measure_all = torch.full((len(q0), len(SAFETY_KINDS) + len(others)), -math.inf, dtype=torch.float64)
+        measure_all = torch.full((len(q0), len(SAFETY_KINDS) + len(others)), -math.inf, dtype=torch.float64,
+                                 device=q0.device)
 
         def evaluate(x, rows, c_prev) -> Evaluation:
             r, J, hole, c, fresh = self._rows(x, tgt[rows], c_prev, [(p, f[rows]) for p, f in others])
@@ -255,7 +256,7 @@ class HybridSolver(Solver):
         key = torch.where(status == 0, -worst.clamp(-10, 10), cand.hole_error.clamp(max=1e3))
         key = torch.where(status == 2, -worst.clamp(-10, 10) + 100.0 * (~exact).double(), key)
         if self.s.prefer == "start" and reference is not None:
-            span = self.space.upper - self.space.lower
+            span = (self.space.upper - self.space.lower).to(cand.q)
             motion = (((cand.q - reference)[:, self.space.free] / span) ** 2).sum(-1)
             key = torch.where(status == 0, motion, key)
         return status, status.double() * 1e6 + key
@@ -265,24 +266,25 @@ class HybridSolver(Solver):
         ``(holes, n_joints)`` is each hole's start. Iterations add up over a hole's candidates."""
         k = len(cand.q) // holes
         status, score = self.rank(cand, reference.repeat_interleave(k, dim=0))
-        pick = score.reshape(holes, k).argmin(dim=1) + torch.arange(holes) * k
+        pick = score.reshape(holes, k).argmin(dim=1) + torch.arange(holes, device=score.device) * k
         best = cand.take(pick)
         best.iterations = cand.iterations.reshape(holes, k).sum(dim=1)
         return best, status[pick]
 
     def starts(self, q_net: torch.Tensor, kind: str) -> torch.Tensor:
         """``(holes, K, n_joints)`` extra starts: ``perturbed`` network answers, or ``random`` / ``deep``
-        joint vectors (``random_starts`` / ``deep_starts`` of them) within the start box."""
+        joint vectors (``random_starts`` / ``deep_starts`` of them) within the start box. The draws come
+        from a seeded CPU generator on any device, so a GPU solve tries the same starts as the CPU one."""
         s, space = self.s, self.space
         g = torch.Generator().manual_seed(s.seed + ("perturbed", "random", "deep").index(kind))
-        H = len(q_net)
+        H, cpu = len(q_net), torch.device("cpu")
         if kind == "perturbed":
-            noise = torch.randn(H, s.perturbed_starts, space.n, generator=g, dtype=torch.float64)
-            x = q_net[:, space.free].unsqueeze(1) + s.perturb * (space.upper - space.lower) * noise
+            noise = torch.randn(H, s.perturbed_starts, space.n, generator=g, dtype=torch.float64, device=cpu)
+            x = q_net[:, space.free].unsqueeze(1) + (s.perturb * (space.upper - space.lower) * noise).to(q_net)
         else:
             k = s.random_starts if kind == "random" else s.deep_starts
-            u = torch.rand(H, k, space.n, generator=g, dtype=torch.float64)
-            x = self.start_lo + u * (self.start_hi - self.start_lo)
+            u = torch.rand(H, k, space.n, generator=g, dtype=torch.float64, device=cpu)
+            x = (self.start_lo + u * (self.start_hi - self.start_lo)).to(q_net)
         return space.full(self.project(x))
 
     def _try(self, best: Candidates, status: torch.Tensor, todo: torch.Tensor, starts: torch.Tensor,
@@ -294,7 +296,7 @@ class HybridSolver(Solver):
         if H == 0 or K == 0:
             return
         new = self.refine(starts.reshape(H * K, n), pose[todo].repeat_interleave(K, dim=0), use_safety, max_iters,
-                          owner=torch.arange(H).repeat_interleave(K),
+                          owner=torch.arange(H, device=starts.device).repeat_interleave(K),
                           others=[(p, f[todo].repeat_interleave(K, dim=0)) for p, f in others])
         chosen, chosen_status = self.best_of(Candidates.per_hole([best.take(todo), new], H), H, reference[todo])
         best.put(todo, chosen)
@@ -350,13 +352,14 @@ class HybridSolver(Solver):
             pose = targets.pose.double()
             target = self.consistent(pose)
             others = self._obstacles(obstacles, len(pose))
+            # the first starts on the targets' device: a solve runs where its holes are (CPU or CUDA)
             if start is not None:
-                q_net = self.boom.check_joints(start, "start").double().expand(len(pose), -1).clone()
+                q_net = self.boom.check_joints(start, "start").to(pose).expand(len(pose), -1).clone()
             elif self.init is not None:
-                own = targets if self.base is None else HoleTargets(pose - self.base.repeat(2), targets.depth)
-                q_net = self.init.joints(own)
+                own = targets if self.base is None else HoleTargets(pose - self.base.to(pose).repeat(2), targets.depth)
+                q_net = self.init.joints(own).to(pose)
             else:
-                q_net = self.space.full((0.5 * (self.space.lower + self.space.upper)).expand(len(pose), -1))
+                q_net = self.space.full((0.5 * (self.space.lower + self.space.upper)).to(pose).expand(len(pose), -1))
             best = self.refine(q_net, target, use_safety=False, others=others)
             status, _ = self.rank(best)
             spare = best.clearances.min(dim=-1).values >= self.s.margin
