@@ -339,12 +339,42 @@ def test_missing_files_bad_arguments_and_unsupported_settings(good, tmp_path):
     rc, _, err = _run(traj, [o for o in overrides if o != "rig=twin"])  # the default rig is single
     assert rc == 2 and "planned for rig 'twin'" in err and "pass rig=twin" in err
     rc, _, err = _run(traj, [*overrides, "boom_model=/no/such/model.yaml"])
-    assert rc == 2 and "does not support calibrated boom models" in err
+    assert rc == 2 and "boom_model = '/no/such/model.yaml': cannot read it" in err
+    rc, _, err = _run(traj, [*overrides, "boom_models={X: /no/such/model.yaml}"])
+    assert rc == 2 and "boom_models: no boom ['X'] in rig 'twin'" in err
     rc, _, err = _run(traj, [*overrides, "no_such_group=3"])
     assert rc == 2 and "settings" in err
 
 
 # -- the geometry against independent values ------------------------------------------------------
+
+def test_a_calibrated_model_s_frames_equal_the_planner_s(tmp_path, jumbo8):
+    """The checker's own calibrated chain (``P exp(hat(xi)) P^-1`` by the matrix series) against the project's
+    error model (the adjoint, then the closed-form SE(3) exponential), on errors far above a real boom's;
+    given per boom (``boom_models.R``), the other boom stays nominal; a model of another boom is refused."""
+    import torch
+
+    from pipeline.calibration.error_model import BoomWithErrors, ErrorLevel, draw_errors
+    from pipeline.calibration.model_file import save_model
+
+    twists = draw_errors(jumbo8, ErrorLevel(angle_deg=2.0, tilt_deg=1.5, offset_mm=20.0), seed=3, distribution="normal")
+    save_model(tmp_path / "r.yaml", jumbo8, twists)
+    st = rc_settings(["rig=twin", f"boom_models={{R: {tmp_path / 'r.yaml'}}}"])
+    left, right = st.booms
+    g = np.random.default_rng(4)
+    q = left.model.lo + (left.model.hi - left.model.lo) * g.random((300, len(left.model.lo)))
+    qt = torch.tensor(q, dtype=torch.float64)
+    calibrated = BoomWithErrors(jumbo8, twists)
+    project = calibrated.frames(qt).numpy()[:, : jumbo8.n_rows + 1]  # base and row frames (then the tool's)
+    assert np.abs(right.model.frames(q) - project).max() < 1e-12
+    assert np.abs(right.model.tool_pose(q)[0] - calibrated.tool_pose(qt)[0].numpy()).max() < 1e-12
+    nominal = jumbo8.frames(qt).numpy()[:, : jumbo8.n_rows + 1]
+    assert np.abs(left.model.frames(q) - nominal).max() < 1e-12 and np.abs(project - nominal).max() > 0.01
+    doc = (tmp_path / "r.yaml").read_text().replace("boom: jumbo8", "boom: huang9")
+    (tmp_path / "other.yaml").write_text(doc)
+    with pytest.raises(cr.InputError, match="a model of boom 'huang9'"):
+        rc_settings(["rig=twin", f"boom_model={tmp_path / 'other.yaml'}"])
+
 
 @pytest.fixture(scope="module")
 def jumbo():

@@ -131,9 +131,10 @@ def test_dvc_repro_of_the_quick_experiment_then_up_to_date_and_a_param_change_re
     # Also fewer execution draws, no torch.compile row and no per-runtime processes in the export benchmark
     # (each is tested in its own stage's tests): the first repro took 537 s without these (16 stages, about
     # 10 s of each only starting Python, torch and MLflow), 594 s for the test in CI.
-    _run([sys.executable, "-m", "pipeline.params", *SHORT, "round.routing=false", "schedule.baselines=false",
-          "runtime.threads=1", "runtime.train_threads=1", "execution.draws=20", "export.benchmark.compile=false",
-          "export.benchmark.isolate=false"], cwd=tmp_path)
+    compose = [sys.executable, "-m", "pipeline.params", *SHORT, "round.routing=false", "schedule.baselines=false",
+               "runtime.threads=1", "runtime.train_threads=1", "execution.draws=20", "export.benchmark.compile=false",
+               "export.benchmark.isolate=false"]
+    _run(compose, cwd=tmp_path)
     dvc = [sys.executable, "-m", "dvc"]
     _run([*dvc, "repro"], cwd=tmp_path, timeout=1500)  # a guard against a hang, not a speed test
     d = "data/tiny"
@@ -159,6 +160,20 @@ def test_dvc_repro_of_the_quick_experiment_then_up_to_date_and_a_param_change_re
     _run([*dvc, "repro"], cwd=tmp_path)
     changed = {p for p in outs if (tmp_path / d / p).stat().st_mtime_ns != outs[p]}
     assert changed == {"models/uikm.pt", "eval/metrics.json", "report/README.md"}
+
+    # a conf file edited by hand, then params.yaml composed again (README): the stages that time motion, and
+    # no other, are named, each for that one setting
+    motion = tmp_path / "conf" / "motion" / "jumbo8.yaml"
+    text = motion.read_text()
+    assert "  q1: 15\n" in text
+    motion.write_text(text.replace("  q1: 15\n", "  q1: 7.5\n"))
+    _run([*compose, "baselines.uikm.lam=2.0"], cwd=tmp_path)  # the uikm change above, as a setting this time
+    status = json.loads(_run([*dvc, "status", "--json"], cwd=tmp_path).stdout)
+    stages = yaml.safe_load((tmp_path / "dvc.yaml").read_text())["stages"]
+    timing = {name for name, st in stages.items() if "motion" in (st.get("params") or [])}
+    assert "schedule" in timing and set(status) == timing, status
+    for name in timing:  # each for its motion params alone
+        assert status[name] == [{"changed deps": {"params.yaml": {"motion": "modified"}}}], status[name]
 
 
 def _check_dataset_digests_are_dvc_hashes(repo: Path, d: str) -> None:

@@ -1,12 +1,19 @@
 """A boom from its YAML (``conf/boom/<name>.yaml``): modified D-H forward kinematics in numpy, the
-collision bodies (capsules) and a lever-arm bound of how far a body point moves per unit of each joint.
+collision bodies (capsules) and a lever-arm bound of how far a body point moves per unit of each joint;
+optionally a calibrated model on it (a ``boom-ik/error-model/1`` file, docs/calibration.md).
 
 Modified (Craig) D-H, spec section 1: ``T(i-1, i) = RotX(alpha_{i-1}) TransX(a_{i-1}) RotZ(theta_i)
 TransZ(d_i)``; YAML row i holds alpha_{i-1}, a_{i-1} and the offsets of theta_i and d_i.
+
+A calibrated row is ``E_i T(i-1, i)``: the error twist ``xi_i = (rx, ry, rz, tx, ty, tz)`` is written in
+the row's axis frame ``P_i = RotX(alpha_{i-1}) TransX(a_{i-1})``, so ``E_i = P_i exp(hat(xi_i)) P_i^-1``.
+The exponential here is the 4 x 4 matrix series with scaling and squaring, not the closed form the
+planner uses (its adjoint, then Rodrigues), so the two are independent ways to the same transform.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 
@@ -69,6 +76,35 @@ class BoomModel:
         self.bodies = [self._body(k, v, lng) for k, v in node["bodies"].items()]
         names = [b.name for b in self.bodies]
         self.self_pairs = [(names.index(a), names.index(b)) for a, b in node.get("self_pairs", [])]
+        self.errors = None  # (n_rows, 4, 4) E_i of a calibrated model, None: the nominal chain
+        by_row = {int(r): name for name, r in zip(self.joint_names, self.joint_row, strict=True)}
+        self.row_keys = [by_row.get(i, f"row{i + 1}") for i in range(n)]  # an error-model file's name of each row
+
+    def calibrated(self, doc: dict, where: str) -> BoomModel:
+        """This boom with the error twists of an error-model file's ``doc`` (a copy; this one unchanged)."""
+        if not isinstance(doc, dict) or doc.get("format") != "boom-ik/error-model/1":
+            raise InputError(f"{where}: not a boom error model (format boom-ik/error-model/1)")
+        for key, want in (("angle_unit", "deg"), ("length_unit", "mm"),
+                          ("components", ["rx", "ry", "rz", "tx", "ty", "tz"])):
+            if doc.get(key) != want:
+                raise InputError(f"{where}: {key} = {doc.get(key)!r}; expected {want!r}")
+        if doc.get("boom") != self.name:
+            raise InputError(f"{where}: a model of boom {doc.get('boom')!r}, but this boom is a {self.name!r}")
+        errors = doc.get("errors")
+        if not isinstance(errors, dict) or set(errors) != set(self.row_keys):
+            raise InputError(f"{where}: errors must list rows {self.row_keys}; found {errors!r}")
+        xi = np.zeros((self.n_rows, 6))
+        for i, key in enumerate(self.row_keys):
+            row = errors[key]
+            if not isinstance(row, dict) or set(row) != set(doc["components"]):
+                raise InputError(f"{where}: errors.{key} must give {doc['components']}; got {row!r}")
+            vals = [row[c] for c in doc["components"]]
+            if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in vals):
+                raise InputError(f"{where}: errors.{key}: every component must be a finite number; got {row!r}")
+            xi[i] = np.array(vals, float) * np.array([math.pi / 180.0] * 3 + [1e-3] * 3)
+        out = copy.copy(self)
+        out.errors = np.stack([_error_transform(self.alpha[i], self.a[i], xi[i]) for i in range(self.n_rows)])
+        return out
 
     def _body(self, name: str, node: dict, lng: float) -> Body:
         frames, offsets = [], []
@@ -101,6 +137,8 @@ class BoomModel:
         T[..., 3, 3] = 1.0
         out = np.empty((N, self.n_rows + 1, 4, 4))
         out[:, 0] = np.eye(4)
+        if self.errors is not None:
+            T = self.errors @ T
         for i in range(self.n_rows):  # the chain's rows (8), not time: every instant at once
             out[:, i + 1] = out[:, i] @ T[:, i]
         return out
@@ -131,6 +169,8 @@ class BoomModel:
         if d_extent is None:
             d_extent = self.d_extent()
         link = np.abs(self.a) + d_extent  # bound of |o_i - o_{i-1}| for row i (0-based: frame i+1)
+        if self.errors is not None:  # a calibrated row's error moves its origin by at most its translation
+            link = link + np.linalg.norm(self.errors[:, :3, 3], axis=-1)
         out = np.zeros((len(self.bodies), len(self.joint_names)))
         for bi, b in enumerate(self.bodies):
             for k, f in enumerate(b.frames):
@@ -150,3 +190,26 @@ class BoomModel:
                 vals += [q_seen[:, j].min(), q_seen[:, j].max()]
             ext[r] = max(abs(self.d0[r] + v) for v in vals)
         return ext
+
+
+def _expm(A: np.ndarray, terms: int = 24) -> np.ndarray:
+    """The matrix exponential of a small square matrix: halve until its norm is below 1/2, sum the
+    series, square back."""
+    k = max(0, int(np.ceil(np.log2(max(np.abs(A).sum(1).max(), 1e-300) / 0.5))))
+    B = A / 2.0**k
+    out, term = np.eye(len(A)), np.eye(len(A))
+    for i in range(1, terms):
+        term = term @ B / i
+        out = out + term
+    for _ in range(k):
+        out = out @ out
+    return out
+
+
+def _error_transform(alpha: float, a: float, xi: np.ndarray) -> np.ndarray:
+    """``E = P exp(hat(xi)) P^-1`` (module docstring) of one row, ``(4, 4)``."""
+    ca, sa = math.cos(alpha), math.sin(alpha)
+    P = np.array([[1.0, 0, 0, a], [0, ca, -sa, 0], [0, sa, ca, 0], [0, 0, 0, 1]])
+    rx, ry, rz, tx, ty, tz = xi
+    hat = np.array([[0, -rz, ry, tx], [rz, 0, -rx, ty], [-ry, rx, 0, tz], [0, 0, 0, 0]], float)
+    return P @ _expm(hat) @ np.linalg.inv(P)

@@ -3,7 +3,9 @@
 Hydra's compose API on the project's ``conf/`` with the stage's own command-line overrides
 (``rig=twin motion.joint_speeds.q1=7.5 ...``): Hydra is the settings reader, nothing of ``pipeline``
 is imported. A rig boom whose ``boom:`` equals the composed ``boom.name`` uses the composed ``boom``
-node (so ``boom.*`` overrides reach it); any other reads ``conf/boom/<name>.yaml``.
+node (so ``boom.*`` overrides reach it); any other reads ``conf/boom/<name>.yaml``. A calibrated model
+goes on top as the stage puts it: ``boom_models.<name>`` (that boom), else ``boom_model`` (every boom of
+its kind), each a file relative to the project root (:meth:`BoomModel.calibrated`).
 """
 
 from __future__ import annotations
@@ -79,12 +81,49 @@ def _boom_node(name: str, composed: dict) -> tuple[dict, str]:
     return OmegaConf.to_container(OmegaConf.load(path), resolve=True), str(path)
 
 
+def _model_file(setting: str, value) -> dict:
+    """The YAML of a calibrated model file a setting names (relative paths: the project root, as the stage reads
+    them), read as plain data."""
+    import yaml
+
+    if not isinstance(value, str) or not value:
+        raise InputError(f"settings: {setting} = {value!r}: expected the path of a boom model file")
+    path = Path(value) if Path(value).is_absolute() else CONF_DIR.parent / value
+    try:
+        return yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as e:
+        raise InputError(f"settings: {setting} = {value!r}: cannot read it ({' '.join(str(e).split())})") from None
+
+
+def _calibrated(cfg: dict, rig: dict) -> dict[str, tuple[str, dict]]:
+    """Rig boom name or kind -> (setting, model file's YAML): ``boom_models.<name>`` per boom, ``boom_model`` for
+    every boom of its kind (keyed ``kind:<boom kind>``), as the stage reads them."""
+    out = {}
+    one = cfg.get("boom_model")
+    if one:
+        doc = _model_file("boom_model", one)
+        out[f"kind:{doc.get('boom') if isinstance(doc, dict) else None}"] = ("boom_model", doc)
+    per = cfg.get("boom_models") or {}
+    if not isinstance(per, dict):
+        raise InputError(f"settings: boom_models = {per!r}: expected a mapping rig boom name -> model file")
+    names = [str(b.get("name")) for b in rig.get("booms") or []]
+    unknown = sorted(set(per) - set(names))
+    if unknown:
+        raise InputError(f"settings: boom_models: no boom {unknown} in rig {rig.get('name')!r}; booms: {names}")
+    for name, value in per.items():
+        out[name] = (f"boom_models.{name}", _model_file(f"boom_models.{name}", value))
+    return out
+
+
 def settings(overrides: list[str]) -> Settings:
     cfg = compose(overrides)
-    if cfg.get("boom_model"):
-        raise InputError(f"settings: boom_model = {cfg['boom_model']!r}: the independent checker does not support "
-                         "calibrated boom models yet (it checks the nominal D-H of conf/boom/ only)")
     rig, motion, safety, tunnel = cfg["rig"], cfg["motion"], cfg["safety"], cfg["tunnel"]
+    calibrated = _calibrated(cfg, rig)
+    kinds = {str(b.get("boom")) for b in rig.get("booms") or []}
+    stray = [k[5:] for k in calibrated if k.startswith("kind:") and k[5:] not in kinds]
+    if stray:
+        raise InputError(f"settings: boom_model: a model of boom {stray[0]!r}, but rig {rig.get('name')!r} has booms "
+                         f"of kind {sorted(kinds)}")
     speeds = motion.get("joint_speeds") or {}
     drilling = motion.get("drilling") or {}
     booms, models = [], {}
@@ -95,6 +134,9 @@ def settings(overrides: list[str]) -> Settings:
             node, src = _boom_node(kind, cfg["boom"])
             models[kind] = BoomModel(node, src)
         m = models[kind]
+        setting, doc = calibrated.get(str(b.get("name")), calibrated.get(f"kind:{kind}", (None, None)))
+        if setting is not None:  # most specific first: boom_models.<name>, then boom_model of its kind
+            m = m.calibrated(doc, f"settings: {setting}")
         base, park = np.asarray(b.get("base", []), float), np.asarray(b.get("park", []), float)
         finite = np.isfinite(base).all() and np.isfinite(park).all()
         if base.shape != (3,) or park.shape != (len(m.joint_names),) or not finite:
