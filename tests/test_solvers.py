@@ -261,6 +261,13 @@ def test_benchmark_writes_one_row_per_method_and_logs_it(bench, make_cfg):
     assert hybrid["ok_share"] >= 0.9 and hybrid["ok_share"] >= nm["ok_share"]  # exact and clear, from a weak network
     compiled = on_disk.set_index("method").loc["hybrid_compiled"]
     assert compiled["ok_share"] == hybrid["ok_share"]  # the compiled path gives the hybrid's statuses
+    single = on_disk.set_index("method")[["single_holes", "single_ms_per_hole", "single_ms_p95", "single_ms_p99",
+                                          "single_ms_max"]]
+    # the entries with a tail target time every hole alone (their own `single`); the rest benchmark.single
+    assert single.loc["hybrid_compiled", "single_holes"] == single.loc["hybrid", "single_holes"] == 24
+    assert single.loc["nm", "single_holes"] == min(24, make_cfg(tmp).benchmark.single)
+    for lower, upper in (("per_hole", "p95"), ("p95", "p99"), ("p99", "max")):
+        assert (single[f"single_ms_{lower}"] <= single[f"single_ms_{upper}"]).all()
     for peer in peers:  # exact (the peers solve the pose) but judged by the same safety model
         assert on_disk.set_index("method").loc[peer, "solved_1mm_share"] >= 0.9
     reference = json.loads((out / "results.json").read_text())["status_reference"]["hybrid"]
@@ -288,6 +295,8 @@ def test_benchmark_names_unknown_methods_and_missing_models(tiny_study, make_cfg
         benchmark.run(make_cfg(tmp, "benchmark.methods=[cuikm,warp_drive]"))
     with pytest.raises(ConfigError, match="benchmark.holes"):
         benchmark.run(make_cfg(tmp, "benchmark.holes=100000"))
+    with pytest.raises(ConfigError, match=r"benchmark.solvers.cuikm.single = -1"):
+        benchmark.run(make_cfg(tmp, "benchmark.methods=[cuikm]", "+benchmark.solvers.cuikm.single=-1"))
     with pytest.raises(InputError, match="no such hole table"):
         benchmark.run(make_cfg(tmp_path / "empty"))
 

@@ -13,6 +13,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 
+import numpy as np
 import pandas as pd
 import torch
 
@@ -22,6 +23,7 @@ from pipeline.core.settings import rule
 from pipeline.data.hole_sets import read_hole_poses
 from pipeline.evaluation.markdown import markdown_table
 from pipeline.evaluation.metrics import solution_table, summarize
+from pipeline.evaluation.peer_timing import single_latencies, threads
 from pipeline.evaluation.plots import error_vs_time
 from pipeline.evaluation.status_reference import status_agreement
 from pipeline.solvers import HoleTargets, Solver, SolveResult, build_solver
@@ -32,7 +34,8 @@ log = logging.getLogger(__name__)
 
 COLUMNS = ["method", "holes", "hole_mm_mean", "hole_mm_p95", "hole_mm_max", "solved_1mm_share",
            "collision_rate_paper", "any_violation_share", "ok_share", "batch_ms_per_hole", "holes_per_s",
-           "single_ms_per_hole", "iterations_mean", "setup_s"]
+           "single_ms_per_hole", "single_ms_p95", "single_ms_p99", "single_ms_max", "single_holes",
+           "iterations_mean", "setup_s"]
 OK_MM = 0.01  # "ok" for every method alike: hole-seeking error <= 0.01 mm and no safety violation
 
 
@@ -45,7 +48,8 @@ class BenchmarkSettings:
     methods: list[str]
     solvers: dict  # method -> its entry (kind and that solver's parameters)
     papers: dict
-    single: int = field(default=20, metadata=rule(ge=0))
+    single: int = field(default=20, metadata=rule(ge=0))  # holes solved alone, one thread (a solver entry's own
+    # ``single`` overrides it: the rows whose tail is a target take 1 000)
     reference_ok_sample: int = field(default=200, metadata=rule(ge=0))  # hybrid statuses vs a slow search
 
 
@@ -61,15 +65,17 @@ def load_holes(holes_dir, groups: list[int], n: int) -> torch.Tensor:
 
 
 def measure(solver: Solver, pose: torch.Tensor, depth: float, safety, single: int) -> tuple[dict, SolveResult]:
-    """A batched solve of every hole (repeated up to 1 s for fast solvers, median time), then
-    ``single`` holes one at a time (median latency)."""
+    """A batched solve of every hole (repeated up to 1 s for fast solvers, median time), then the first
+    ``single`` holes one at a time on one thread (torch and numba), as a controller asks for one hole:
+    the median and the tail (p95, p99, max) of their latencies."""
     targets = HoleTargets(pose, depth)
     solver.solve(targets.subset([0]))  # warm-up: lazy setup (RBF fit, first kernels) is not timed
     result = solver.solve(targets)
     batch_s = [result.wall_s]
     while sum(batch_s) < 1.0 and len(batch_s) < 20:  # fast solvers: median of repeats, not one noisy sample
         batch_s.append(solver.solve(targets).wall_s)
-    latencies = [solver.solve(targets.subset([i])).wall_s for i in range(min(single, len(targets)))]
+    with threads(1):
+        latencies = single_latencies(solver, targets, single)[0]
     table = solution_table(pose, result.q, safety)
     row = summarize(table)
     batch = statistics.median(batch_s)
@@ -80,6 +86,9 @@ def measure(solver: Solver, pose: torch.Tensor, depth: float, safety, single: in
         "ok_share": float(((table["hole_mm"] <= OK_MM) & ~table["any_violation"]).mean()),
         "batch_ms_per_hole": 1000 * batch / len(targets), "holes_per_s": len(targets) / batch,
         "single_ms_per_hole": 1000 * statistics.median(latencies) if latencies else float("nan"),
+        **{f"single_ms_{k}": 1000 * float(np.percentile(latencies, q)) if latencies else float("nan")
+           for k, q in (("p95", 95), ("p99", 99), ("max", 100))},
+        "single_holes": len(latencies),
         "iterations_mean": float(result.iterations.double().mean()),
     }, result
 
@@ -90,7 +99,7 @@ def markdown(df: pd.DataFrame) -> str:
         fmt[col] = fmt[col].map(lambda v: f"{v:.3g}" if v < 100 else f"{v:.0f}")
     for col in ["solved_1mm_share", "collision_rate_paper", "any_violation_share", "ok_share"]:
         fmt[col] = (100 * fmt[col]).map(lambda v: f"{v:.1f} %")
-    for col in ["batch_ms_per_hole", "single_ms_per_hole"]:
+    for col in ["batch_ms_per_hole", "single_ms_per_hole", "single_ms_p95", "single_ms_p99", "single_ms_max"]:
         fmt[col] = fmt[col].map(lambda v: f"{v:.3g}")
     fmt["holes_per_s"] = fmt["holes_per_s"].map(lambda v: f"{v:,.0f}")
     fmt["iterations_mean"] = fmt["iterations_mean"].map(lambda v: f"{v:.1f}")
@@ -101,7 +110,8 @@ def markdown(df: pd.DataFrame) -> str:
 def build_solvers(methods: list[str], specs: dict, safety, models_dir, start_box=None,
                   hybrid: HybridSettings | None = None) -> dict[str, tuple[Solver, float, int | None]]:
     """Every solver built (networks loaded, RBF fitted) before the first solve: fail early. Each
-    comes with its setup time and its ``max_holes`` (None: every hole); a hybrid entry runs with
+    comes with its setup time, its ``max_holes`` (None: every hole) and its ``single`` (holes timed alone;
+    None: ``benchmark.single``); a hybrid entry runs with
     ``hybrid`` (the ``solver`` group)."""
     unknown = [m for m in methods if m not in specs]
     if unknown:
@@ -109,9 +119,11 @@ def build_solvers(methods: list[str], specs: dict, safety, models_dir, start_box
     solvers = {}
     for m in methods:
         spec = dict(specs[m])
-        cap = spec.pop("max_holes", None)
+        cap, single = spec.pop("max_holes", None), spec.pop("single", None)
         if cap is not None and (isinstance(cap, bool) or not isinstance(cap, int) or cap < 1):
             raise ConfigError(f"benchmark.solvers.{m}.max_holes = {cap!r}: expected a positive integer or null")
+        if single is not None and (isinstance(single, bool) or not isinstance(single, int) or single < 0):
+            raise ConfigError(f"benchmark.solvers.{m}.single = {single!r}: expected a whole number >= 0 or null")
         start = time.perf_counter()
         try:
             solver = build_solver(m, spec, safety.boom, models_dir, specs, safety, start_box, hybrid)
@@ -120,7 +132,7 @@ def build_solvers(methods: list[str], specs: dict, safety, models_dir, start_box
             continue
         if hasattr(solver, "fit"):
             solver.fit()
-        solvers[m] = (solver, time.perf_counter() - start, cap)
+        solvers[m] = (solver, time.perf_counter() - start, cap, single)
     return solvers
 
 
@@ -130,8 +142,9 @@ def benchmark_all(solvers: dict, pose: torch.Tensor, safety, settings: Benchmark
     reports statuses is also checked against the slow reference search. Metrics go to ``mlrun``
     (anything with ``log_metrics(values, prefix=)``). Returns the table and the references by method."""
     rows, references = [], {}
-    for m, (solver, setup_s, cap) in solvers.items():
-        row, result = measure(solver, pose[:cap], safety.boom.preview_depth, safety, settings.single)
+    for m, (solver, setup_s, cap, single) in solvers.items():
+        row, result = measure(solver, pose[:cap], safety.boom.preview_depth, safety,
+                              settings.single if single is None else single)
         rows.append({"method": m, **row, "setup_s": setup_s})
         mlrun.log_metrics(row, prefix=f"{m}.")
         if result.status is not None and settings.reference_ok_sample:
@@ -140,9 +153,9 @@ def benchmark_all(solvers: dict, pose: torch.Tensor, safety, settings: Benchmark
             mlrun.log_metrics({k: v for k, v in references[m].items() if isinstance(v, (int, float))},
                               prefix=f"{m}.reference.")
         log.info("%-10s %d holes: mean %.4g mm, p95 %.4g mm, ok %.2f %%, collisions %.2f %%, %.4g ms/hole "
-                 "batched, %.3g ms single", m, row["holes"], row["hole_mm_mean"], row["hole_mm_p95"],
-                 100 * row["ok_share"], 100 * row["collision_rate_paper"], row["batch_ms_per_hole"],
-                 row["single_ms_per_hole"])
+                 "batched, single (%d holes) median %.3g / p99 %.3g ms", m, row["holes"], row["hole_mm_mean"],
+                 row["hole_mm_p95"], 100 * row["ok_share"], 100 * row["collision_rate_paper"],
+                 row["batch_ms_per_hole"], row["single_holes"], row["single_ms_per_hole"], row["single_ms_p99"])
     return pd.DataFrame(rows, columns=COLUMNS), references
 
 
