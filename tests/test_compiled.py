@@ -17,7 +17,7 @@ from pipeline.geometry.kinematics import pose_errors
 from pipeline.learning.models import build_model
 from pipeline.solvers.base import HoleTargets, NetworkSolver, Solver
 from pipeline.solvers.compiled import CompiledHybridSolver, CompiledMLP
-from pipeline.solvers.hybrid import HybridSettings, HybridSolver
+from pipeline.solvers.hybrid import Candidates, HybridSettings, HybridSolver
 
 r = math.radians
 SPEC_Q = [[0, 0, 3.5, 0, 0, 0, 0, 2.5], [r(10), r(15), 4.0, r(30), r(-20), r(10), r(45), 2.0],
@@ -125,6 +125,30 @@ def test_statuses_equal_the_torch_hybrid(safety):
     for k in SAFETY_KINDS:
         assert torch.allclose(got.clearances[k], values[k], atol=1e-12, rtol=0), k
     assert (got.errors["hole"][ok] <= 1e-5).all() and all((values[k][ok] >= 0).all() for k in SAFETY_KINDS)
+
+
+def test_the_fast_path_finishes_the_holes_the_first_stage_makes_ok(safety):
+    """Holes whose pose-only answer is not exact and clear by the margin take the cascade's first stage in
+    the kernel: some end there ``ok`` (no torch bookkeeping), the rest go on; the torch hybrid, run to
+    the same stage, agrees on which."""
+    from pipeline.solvers.compiled import fast_path
+
+    boom = safety.boom
+    pose, starts = _holes_and_starts(safety)
+    settings = HybridSettings(deep_starts=16)
+    solver = CompiledHybridSolver(boom, safety, Given(boom, pose, starts), settings)
+    tol = settings.tol_mm / 1000
+    reference = HybridSolver(boom, safety, None, settings)
+    target = reference.consistent(pose)
+    first = reference.refine(starts, target, use_safety=False)  # torch: stage 0, every hole
+    pose_only = (first.hole_error <= tol) & (first.clearances.min(-1).values >= settings.margin)
+    safe = reference.refine(starts, target, use_safety=True)  # stage 1 from the same starts
+    both = Candidates.per_hole([first, safe], len(pose))
+    _, status = reference.best_of(both, len(pose), starts)
+    *_, done = fast_path(pose.numpy(), starts.numpy(), settings.max_iters, tol, *solver._kernel_args())
+    done = torch.from_numpy(done)
+    assert torch.equal(done, pose_only | (status == 0))
+    assert (done & ~pose_only).sum() >= 3 and (~done).sum() >= 3  # both ways out of the first stage occur
 
 
 def test_one_hole_at_a_time_gives_the_batch_answer(safety):

@@ -7,7 +7,10 @@ answers; only where the time goes changes:
   hole, the checkpoint's weights through a compiled MLP; for a batch, the torch network, whose
   matrix products are already as fast as the CPU allows), the target made reachable
   (:meth:`HybridSolver.consistent`), Levenberg-Marquardt on the pose alone, and one clearance check.
-  A hole exact and clear by ``margin`` is done there (most holes), with its errors and clearances;
+  A hole exact and clear by ``margin`` is done there (most holes), with its errors and clearances.
+  Where it is not, the cascade's first stage runs in the same kernel (LM with the safety rows from the
+  same start, the better answer kept by the hybrid's ranking, :func:`_rank`): a hole ``ok`` after it
+  is done too, with no torch bookkeeping, which is what keeps one hole's tail short;
 * **every other hole** goes through the hybrid's own cascade (:meth:`HybridSolver.solve`: safety
   rows, perturbed, random and deep starts, the same starts, ranking and statuses), with each
   :meth:`refine` a compiled kernel over holes and their starts instead of torch's batched loop.
@@ -366,12 +369,58 @@ def refine_holes(X0, targets, use_safety, max_iters, sp, ch, sf, st):
 
 # ---------------------------------------------------------------------------------------------- the fast path
 @njit(cache=True)
+def _rank(hole, C, X, X_ref, lo, hi, tol, reach, prefer_start):
+    """:meth:`HybridSolver.rank` of one candidate: (status index, score to minimise)."""
+    worst = min(min(C[0], C[1]), min(C[2], C[3]))
+    exact, clear, reached = hole <= tol, worst >= 0, hole <= reach
+    status = 3
+    if reached and not clear:
+        status = 2
+    if clear and reached:
+        status = 1
+    if exact and clear:
+        status = 0
+    w = min(max(worst, -10.0), 10.0)
+    key = -w if status == 0 else min(hole, 1e3)
+    if status == 2:
+        key = -w + (0.0 if exact else 100.0)
+    if prefer_start and status == 0:
+        key = 0.0
+        for i in range(X.shape[0]):
+            d = (X[i] - X_ref[i]) / (hi[i] - lo[i])
+            key += d * d
+    return status, status * 1e6 + key
+
+
+@njit(cache=True)
+def _errors_into(pose, target, R6, E):
+    """Start, preview and hole-seeking error and the direction error (rad) of the reached pose
+    ``target + R6`` against the pose as given (:func:`~pipeline.geometry.kinematics.pose_errors`)."""
+    e_s, e_p, uv = 0.0, 0.0, 0.0
+    u, v = np.empty(3), np.empty(3)
+    for i in range(3):
+        e_s += (target[i] + R6[i] - pose[i]) ** 2
+        e_p += (target[3 + i] + R6[3 + i] - pose[3 + i]) ** 2
+        u[i] = (target[3 + i] + R6[3 + i]) - (target[i] + R6[i])
+        v[i] = pose[3 + i] - pose[i]
+        uv += u[i] * v[i]
+    cx, cy, cz = u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]
+    e_s, e_p = math.sqrt(e_s), math.sqrt(e_p)
+    E[0], E[1], E[2] = e_s, e_p, 0.5 * (e_s + e_p)
+    E[3] = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), uv)
+
+
+@njit(cache=True)
 def _fast_hole(pose, q0, max_iters, tol, sp, ch, sf, st, Q, E, C, iters):
-    """One hole's fast path: reachable target, pose-only LM from ``q0``, errors ``E`` (start,
-    preview, hole, direction; against the pose as given) and clearances ``C``. Returns whether the
-    hole is done: exact, and clear by at least ``margin``."""
-    free, fixed = sp[0], sp[1]
-    depth, margin = ch[11], st[2]
+    """One hole's fast path: reachable target, pose-only LM from ``q0``; where that answer is not exact
+    and clear by ``margin``, the cascade's first stage too (LM with the safety rows from ``q0``, the
+    better of the two answers kept by the hybrid's ranking). Writes the joints ``Q``, errors ``E``
+    (start, preview, hole, direction; against the pose as given), clearances ``C`` and iterations (both
+    stages' summed, as the hybrid counts them). Returns whether the hole is done, as
+    :meth:`HybridSolver.solve` decides: the pose-only answer exact and clear by at least ``margin``, or the
+    answer kept after the first stage ``ok``. The others go through the hybrid's whole cascade."""
+    free, fixed, lo, hi = sp[0], sp[1], sp[2], sp[3]
+    depth, margin, reach, prefer_start = ch[11], st[2], st[5], st[6] > 0
     nf = free.shape[0]
     target = np.empty(6)
     a0, a1, a2 = pose[3] - pose[0], pose[4] - pose[1], pose[5] - pose[2]
@@ -385,24 +434,28 @@ def _fast_hole(pose, q0, max_iters, tol, sp, ch, sf, st, Q, E, C, iters):
         X0[0, i] = q0[free[i]]
     X, R6 = np.empty((1, nf)), np.empty((1, 6))
     refine_hole(X0, target, False, max_iters, sp, ch, sf, st, X, R6, C.reshape((1, 4)), iters)
+    hole_error = 0.5 * (math.sqrt(_sq(R6[0, :3])) + math.sqrt(_sq(R6[0, 3:])))
+    worst = min(min(C[0], C[1]), min(C[2], C[3]))
+    done = hole_error <= tol and worst >= margin and worst >= 0
+    if not done:  # the cascade's first stage, here: most of the holes the pose-only LM leaves end in it
+        X1, R61, C1 = np.empty((1, nf)), np.empty((1, 6)), np.empty((1, 4))
+        it1 = np.empty(1, dtype=np.int64)
+        refine_hole(X0, target, True, max_iters, sp, ch, sf, st, X1, R61, C1, it1)
+        hole1 = 0.5 * (math.sqrt(_sq(R61[0, :3])) + math.sqrt(_sq(R61[0, 3:])))
+        status0, score0 = _rank(hole_error, C, X[0], X0[0], lo, hi, tol, reach, prefer_start)
+        status1, score1 = _rank(hole1, C1[0], X1[0], X0[0], lo, hi, tol, reach, prefer_start)
+        iters[0] += it1[0]
+        if score1 < score0:  # the first of equals stays, as the hybrid's argmin keeps it
+            status0 = status1
+            X[0, :] = X1[0, :]
+            R6[0, :] = R61[0, :]
+            C[:] = C1[0, :]
+        done = status0 == 0
     Q[:] = fixed
     for i in range(nf):
         Q[free[i]] = X[0, i]
-    e_s, e_p, uv = 0.0, 0.0, 0.0
-    u, v = np.empty(3), np.empty(3)
-    for i in range(3):
-        e_s += (target[i] + R6[0, i] - pose[i]) ** 2
-        e_p += (target[3 + i] + R6[0, 3 + i] - pose[3 + i]) ** 2
-        u[i] = (target[3 + i] + R6[0, 3 + i]) - (target[i] + R6[0, i])
-        v[i] = pose[3 + i] - pose[i]
-        uv += u[i] * v[i]
-    cx, cy, cz = u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]
-    e_s, e_p = math.sqrt(e_s), math.sqrt(e_p)
-    E[0], E[1], E[2] = e_s, e_p, 0.5 * (e_s + e_p)
-    E[3] = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), uv)
-    hole_error = 0.5 * (math.sqrt(_sq(R6[0, :3])) + math.sqrt(_sq(R6[0, 3:])))
-    worst = min(min(C[0], C[1]), min(C[2], C[3]))
-    return hole_error <= tol and worst >= margin and worst >= 0
+    _errors_into(pose, target, R6[0], E)
+    return done
 
 
 @njit(cache=True)
@@ -485,7 +538,7 @@ class CompiledHybridSolver(HybridSolver):
         s = self.s
         return ((self.free, self.fixed, self.lo, self.hi, self.wrap_mask), self.chain.args(), self.arrays.args(),
                 (float(s.damping), 1e-2 * s.tol_mm / 1000, float(s.margin), float(s.guard),
-                 float(s.clearance_weight)))
+                 float(s.clearance_weight), s.reach_tol_mm / 1000, float(s.prefer == "start")))
 
     def refine(self, q0: torch.Tensor, target: torch.Tensor, use_safety: bool,
                max_iters: int | None = None, owner: torch.Tensor | None = None, others=()) -> Candidates:
