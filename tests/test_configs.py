@@ -178,4 +178,5 @@ def test_old_homes_of_moved_settings_are_refused():
 def test_quick_overrides_the_one_hybrid_source():
     cfg = compose(["experiment=quick"])
     assert parse(HybridSettings, cfg.solver, "solver").deep_starts == 16
-    assert set(cfg.benchmark.solvers.hybrid) == {"kind", "init"}  # the benchmark's entry holds no settings
+    # the benchmark's entry holds no solver settings: its kind, its first start and how many holes it times alone
+    assert set(cfg.benchmark.solvers.hybrid) == {"kind", "init", "single"}

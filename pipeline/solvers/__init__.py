@@ -33,6 +33,8 @@ def _init_solver(name: str, init, boom: Boom, models_dir: Path, specs: Mapping |
 
 
 HYBRID_ENTRY = ("init",)  # a hybrid entry's own keys: its settings are the `solver` group (conf/solver/hybrid.yaml)
+# keys of a benchmark entry that are the harness's (how many holes, how many timed alone), not the solver's
+HARNESS_KEYS = ("max_holes", "single")
 
 
 def build_solver(name: str, spec: Mapping, boom: Boom, models_dir: Path, specs: Mapping | None = None,
@@ -44,7 +46,7 @@ def build_solver(name: str, spec: Mapping, boom: Boom, models_dir: Path, specs: 
     ``hybrid`` entry runs with ``hybrid`` (the parsed ``solver`` group; its defaults when None), needs
     the ``safety`` model it keeps, and draws its random starts within ``start_box`` (lower, upper
     joints; the working box) when given."""
-    spec = dict(spec)
+    spec = {k: v for k, v in spec.items() if k not in HARNESS_KEYS}
     kind = spec.pop("kind", None)
     if kind not in SOLVER_KINDS:
         raise ConfigError(f"benchmark.solvers.{name}.kind = {kind!r}: expected one of {list(SOLVER_KINDS)}")
