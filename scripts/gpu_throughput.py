@@ -91,8 +91,7 @@ def main(argv: list[str]) -> dict:
     sampling = hole_sampling(cfg.holes)
     rows = []
     for i, n in enumerate(args.sizes):
-        row = measure_size(solver, safety, sampling, n, args.seed + i, device, args.repeats, args.chunk,
-                           settings.tol_mm)
+        row = measure_size(solver, safety, sampling, n, args.seed + i, device, args.repeats, args.chunk)
         rows.append(row.as_dict())
         print(markdown_table(rows[-1:]).splitlines()[-1], flush=True)
     stages = stage_times(solver, safety, sampling, args.stages, args.seed, device) if args.stages else []
@@ -103,8 +102,7 @@ def main(argv: list[str]) -> dict:
         cpu_net = None if network is None else NetworkSolver(safety.boom, network.model.cpu(), "cuikm")
         for s in (HybridSolver(safety.boom, safety, cpu_net, settings, "hybrid", start_box),
                   CompiledHybridSolver(safety.boom, safety, cpu_net, settings, "hybrid_compiled", start_box)):
-            row = measure_size(s, safety, sampling, args.cpu_baseline, args.seed, cpu, args.repeats, args.chunk,
-                               settings.tol_mm)
+            row = measure_size(s, safety, sampling, args.cpu_baseline, args.seed, cpu, args.repeats, args.chunk)
             rows.append(row.as_dict())
             print(markdown_table(rows[-1:]).splitlines()[-1], flush=True)
     machine = {"torch": torch.__version__, "python": platform.python_version(), "threads": torch.get_num_threads(),
@@ -156,9 +154,10 @@ def stage_times(solver: HybridSolver, safety, sampling, n: int, seed: int, devic
         del solver.refine  # the class's own methods again
         if solver.init is not None:
             del solver.init.joints
-    for row in log + [{"stage": "whole solve", "rows": n, "seconds": total}]:
+    log.append({"stage": "whole solve", "rows": n, "seconds": total})
+    for row in log:
         print(f"{row['stage']:<45} {row['rows']:>10,} rows {row['seconds']:8.3f} s", flush=True)
-    return log + [{"stage": "whole solve", "rows": n, "seconds": total}]
+    return log
 
 
 def log_to_mlflow(result: dict, overrides: list[str]) -> None:

@@ -135,8 +135,8 @@ def test_the_benchmark_s_check_catches_joints_wrongly_called_ok(safety):
 
     sampling = HoleSampling()
     honest = measure_size(HybridSolver(safety.boom, safety, None, SMALL), safety, sampling, 16, 3,
-                          torch.device("cpu"), 1, 16, 0.01)
+                          torch.device("cpu"), 1, 16)
     careless = measure_size(Careless(safety.boom, safety, None, SMALL), safety, sampling, 16, 3,
-                            torch.device("cpu"), 1, 16, 0.01)
+                            torch.device("cpu"), 1, 16)
     assert honest.ok_but_bad == 0
     assert careless.ok_but_bad >= 8 and careless.ok_share <= honest.ok_share - 0.5

@@ -5,7 +5,8 @@ size), solved once untimed (the device's first kernels, cuBLAS/cuSOLVER handles 
 allocator's first blocks are set up there), then solved ``repeats`` times; holes/s is ``N`` over the
 median wall time, taken after the device has finished (``torch.cuda.synchronize``). Every answer is
 judged again from its joints by forward kinematics and the safety model (:func:`solution_table`), not
-by the solver's own statuses: ``ok`` is a hole-seeking error <= ``tol_mm`` with no violation, and
+by the solver's own statuses: ``ok`` is the benchmark's one rule (:func:`~pipeline.evaluation.peer_timing.judge`:
+a hole-seeking error <= 0.01 mm, within the joint ranges, no violation), and
 ``ok_but_bad`` counts holes the solver called ``ok`` that this check does not (it must be 0).
 
 Holes are solved in chunks of at most ``chunk`` (one call each) so the peak memory stays bounded; the
@@ -23,6 +24,7 @@ import torch
 
 from pipeline.data.holes import HoleSampling, sample_holes
 from pipeline.evaluation.metrics import solution_table
+from pipeline.evaluation.peer_timing import judge_table
 from pipeline.geometry.collision import SafetyModel
 from pipeline.solvers.base import HoleTargets, Solver
 
@@ -70,7 +72,7 @@ def solve_in_chunks(solver: Solver, pose: torch.Tensor, depth: float, chunk: int
 
 
 def measure_size(solver: Solver, safety: SafetyModel, sampling: HoleSampling, n: int, seed: int,
-                 device: torch.device, repeats: int, chunk: int, tol_mm: float) -> ThroughputRow:
+                 device: torch.device, repeats: int, chunk: int) -> ThroughputRow:
     """One row: ``n`` holes drawn with ``seed``, moved to ``device``, solved untimed once, then timed."""
     pose, _ = sample_holes(n, safety, sampling, seed)
     pose = pose.to(device)
@@ -89,7 +91,8 @@ def measure_size(solver: Solver, safety: SafetyModel, sampling: HoleSampling, n:
         identical &= statuses2 == statuses and torch.equal(q2, q)
     table = solution_table(pose, q, safety)  # judged again from the joints, on the same device
     hole_mm = torch.tensor(table["hole_mm"].to_numpy())
-    good = torch.tensor(((table["hole_mm"] <= tol_mm) & ~table["any_violation"]).to_numpy())
+    solved, violates = judge_table(table)
+    good = solved & ~violates
     said_ok = torch.tensor([s == "ok" for s in statuses])
     median = statistics.median(walls)
     peak = torch.cuda.max_memory_allocated(device) / 2**30 if device.type == "cuda" else None

@@ -39,8 +39,13 @@ def threads(n: int):
 def judge(pose: torch.Tensor, q: torch.Tensor, safety) -> tuple[torch.Tensor, torch.Tensor]:
     """Per hole: solved (<= 0.01 mm and in the joint ranges) and violating a safety distance, from the
     joints alone (the project's FK and safety model): the same rule for every solver."""
-    table = solution_table(pose, q, safety)
-    solved = torch.tensor((table["hole_mm"] <= OK_MM).to_numpy()) & safety.boom.within_limits(q.double())
+    return judge_table(solution_table(pose, q, safety))
+
+
+def judge_table(table) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`judge` of a :func:`solution_table` already made (its ``within_limits`` column is the boom's
+    range check of the same joints)."""
+    solved = torch.tensor(((table["hole_mm"] <= OK_MM) & table["within_limits"]).to_numpy())
     return solved, torch.tensor(table["any_violation"].to_numpy())
 
 

@@ -95,14 +95,11 @@ def _model_file(setting: str, value) -> dict:
         raise InputError(f"settings: {setting} = {value!r}: cannot read it ({' '.join(str(e).split())})") from None
 
 
-def _calibrated(cfg: dict, rig: dict) -> dict[str, tuple[str, dict]]:
-    """Rig boom name or kind -> (setting, model file's YAML): ``boom_models.<name>`` per boom, ``boom_model`` for
-    every boom of its kind (keyed ``kind:<boom kind>``), as the stage reads them."""
-    out = {}
+def _calibrated(cfg: dict, rig: dict) -> tuple[dict[str, tuple[str, dict]], tuple[str, dict] | None]:
+    """The calibrated model files, read as the stage reads them: per rig boom name ``(setting, YAML)`` from
+    ``boom_models.<name>``, and ``("boom_model", YAML)`` for every boom of the file's kind (or None)."""
     one = cfg.get("boom_model")
-    if one:
-        doc = _model_file("boom_model", one)
-        out[f"kind:{doc.get('boom') if isinstance(doc, dict) else None}"] = ("boom_model", doc)
+    by_kind = ("boom_model", _model_file("boom_model", one)) if one else None
     per = cfg.get("boom_models") or {}
     if not isinstance(per, dict):
         raise InputError(f"settings: boom_models = {per!r}: expected a mapping rig boom name -> model file")
@@ -110,19 +107,17 @@ def _calibrated(cfg: dict, rig: dict) -> dict[str, tuple[str, dict]]:
     unknown = sorted(set(per) - set(names))
     if unknown:
         raise InputError(f"settings: boom_models: no boom {unknown} in rig {rig.get('name')!r}; booms: {names}")
-    for name, value in per.items():
-        out[name] = (f"boom_models.{name}", _model_file(f"boom_models.{name}", value))
-    return out
+    return {name: (f"boom_models.{name}", _model_file(f"boom_models.{name}", v)) for name, v in per.items()}, by_kind
 
 
 def settings(overrides: list[str]) -> Settings:
     cfg = compose(overrides)
     rig, motion, safety, tunnel = cfg["rig"], cfg["motion"], cfg["safety"], cfg["tunnel"]
-    calibrated = _calibrated(cfg, rig)
+    per_boom, by_kind = _calibrated(cfg, rig)
     kinds = {str(b.get("boom")) for b in rig.get("booms") or []}
-    stray = [k[5:] for k in calibrated if k.startswith("kind:") and k[5:] not in kinds]
-    if stray:
-        raise InputError(f"settings: boom_model: a model of boom {stray[0]!r}, but rig {rig.get('name')!r} has booms "
+    model_kind = str(by_kind[1].get("boom")) if by_kind and isinstance(by_kind[1], dict) else None
+    if by_kind and model_kind not in kinds:
+        raise InputError(f"settings: boom_model: a model of boom {model_kind!r}, but rig {rig.get('name')!r} has booms "
                          f"of kind {sorted(kinds)}")
     speeds = motion.get("joint_speeds") or {}
     drilling = motion.get("drilling") or {}
@@ -134,8 +129,9 @@ def settings(overrides: list[str]) -> Settings:
             node, src = _boom_node(kind, cfg["boom"])
             models[kind] = BoomModel(node, src)
         m = models[kind]
-        setting, doc = calibrated.get(str(b.get("name")), calibrated.get(f"kind:{kind}", (None, None)))
-        if setting is not None:  # most specific first: boom_models.<name>, then boom_model of its kind
+        # most specific first: boom_models.<name>, then boom_model on every boom of its kind
+        setting, doc = per_boom.get(str(b.get("name")), by_kind if model_kind == kind else (None, None))
+        if setting is not None:
             m = m.calibrated(doc, f"settings: {setting}")
         base, park = np.asarray(b.get("base", []), float), np.asarray(b.get("park", []), float)
         finite = np.isfinite(base).all() and np.isfinite(park).all()
