@@ -15,7 +15,8 @@ and its baselines, and writes beside the plan (or into ``out``, a folder or a ``
 - ``<stem>_trajectory.csv``: the spec's trajectory file, every boom park to park;
 - ``<stem>_round.json``: makespan, lower bound, baselines, clearance, per boom times, moves by kind;
 - ``<stem>_round_face.png``, ``<stem>_round_gantt.png``, ``<stem>_round_replay.html``;
-- for a rig of several booms (``schedule.interlocks``), the round executed by events (spec section 8,
+- for every rig (``schedule.interlocks``; one boom has no interlock, the file holds its header), the round
+  executed by events (spec section 8,
   :mod:`pipeline.execution.robust`): ``<stem>_actions.csv``, ``<stem>_interlocks.csv``,
   ``<stem>_round_executed.png`` and ``<stem>_round_executed_replay.html``; the trajectory is then the
   round re-timed by its interlocks, and the JSON's ``execution`` holds the drawn rounds' summary.
@@ -143,7 +144,7 @@ def run(cfg: DictConfig) -> dict:
                                   joint_box(rig.booms[0].boom, None if box is None else as_dict(box)))
             reach = reach_table(plan, rig, solvers, "hybrid")
             say(f"reach table: {len(plan)} holes x {len(rig)} booms")
-            finish = robust_finish(execution, say) if settings.interlocks and len(rig) > 1 else None
+            finish = robust_finish(execution, say) if settings.interlocks else None
             res = schedule_round(rig, plan, reach, motions, round_settings, settings.baselines,
                                  settings.check_moves, say, finish)
         finally:
@@ -255,6 +256,7 @@ def run_benchmark(cfg: DictConfig, settings: ScheduleSettings) -> dict:
 
     rigs = benchmark_rigs(cfg, settings.bench_rigs)  # every rig, boom model and motion checked before any work
     round_settings = parse_round(as_dict(cfg.round), "round")
+    execution = parse_execution(as_dict(cfg.execution), "execution") if settings.interlocks else None
     hybrid = parse(HybridSettings, cfg.solver, "solver")
     tracking = TrackingSettings.from_config(cfg.tracking)
     folder = require_writable(project_path(cfg.paths.data) / "benchmark", "paths.data/benchmark")
@@ -265,16 +267,20 @@ def run_benchmark(cfg: DictConfig, settings: ScheduleSettings) -> dict:
     first_start = first_starts(source, settings.network, tracking.uri, "schedule.model_uri")
 
     with stage_run(tracking, "schedule-benchmark", {"stage": "schedule", "mode": "benchmark"}) as mlrun:
-        mlrun.log_params({"schedule": asdict(settings), "round": as_dict(cfg.round), "solver": as_dict(cfg.solver)})
+        mlrun.log_params({"schedule": asdict(settings), "round": as_dict(cfg.round), "solver": as_dict(cfg.solver),
+                          "execution": as_dict(cfg.execution)})
         table = round_benchmark(settings.bench_faces, rigs, hybrid, round_settings, first_start, settings.bench_seed,
-                                lambda m: log.info("%s", m), folder / "rounds", None if box is None else as_dict(box))
+                                lambda m: log.info("%s", m), folder / "rounds", None if box is None else as_dict(box),
+                                execution)
         write_csv(table, folder / "round_benchmark.csv")
         write_text(markdown(table), folder / "round_benchmark.md")
         mlrun.log_table(table, "round_benchmark.json")
         for _, r in table.iterrows():
             key = f"{r['rig']}.{r['face'].split(' (')[0].replace(' ', '')}"
             mlrun.log_metrics({f"{key}.{k}": float(r[k]) for k in ("makespan_s", "lower_bound_s", "ratio", "naive_s",
-                                                                    "nearest_s", "planning_s")})
+                                                                    "nearest_s", "planning_s", "plan_makespan_s",
+                                                                    "robust_price_pct", "exec_p95", "standing_p95_pct")
+                               if pd.notna(r[k])})
     log.info("round benchmark:\n%s", markdown(table))
     return {"rows": len(table)}
 

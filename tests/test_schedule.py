@@ -235,6 +235,34 @@ def test_a_plan_no_boom_can_drill_gets_its_table_and_a_clear_status(face_plan, m
     assert list(r["status"]) == ["unreachable", "unreachable"] and all("no boom can drill" in x for x in r["reason"])
 
 
+def test_a_one_boom_round_writes_its_actions_and_an_interlocks_file_without_rows(face_plan, make_cfg):
+    """Spec section 8 for every rig: one boom's round has its actions (park to park, each hole drilled once,
+    back to back in the trajectory's clock) and an interlocks file with the header alone; its draws
+    stand nowhere, and the independent checker executes it."""
+    tmp, holes = face_plan
+    plan = tmp / "one_boom.csv"
+    holes.iloc[::8].reset_index(drop=True).to_csv(plan, index=False)
+    overrides = [o for o in FAST if not o.startswith("rig=")] + ["rig=single", "schedule.replay=false"]
+    s = schedule.run(make_cfg(tmp, *overrides, f"plan={plan}"))
+    acts = pd.read_csv(tmp / "one_boom_actions.csv", keep_default_na=False, na_values=[""])
+    inter = pd.read_csv(tmp / "one_boom_interlocks.csv")
+    assert list(inter.columns) == ["boom", "action", "after_boom", "after_action"] and len(inter) == 0
+    assert set(acts["boom"]) == {"B"} and list(acts["action"]) == list(range(len(acts)))
+    assert sorted(acts.loc[acts["kind"] == "drill", "hole_id"]) == sorted(holes["hole_id"].iloc[::8])
+    assert acts["kind"].iloc[0] == acts["kind"].iloc[-1] == "move" and acts["t_start"].iloc[0] == 0.0
+    assert np.allclose(acts["t_start"].to_numpy()[1:], acts["t_end"].to_numpy()[:-1])  # nothing to wait for
+    assert acts["t_end"].iloc[-1] == pytest.approx(s["makespan_s"])
+    ex = s["execution"]
+    assert ex["robust"] and ex["deadlocks"] == 0 and ex["interlocks"]["interlocks"] == 0
+    assert ex["interlocks"]["min_clearance_m"] is None  # no pair of booms to measure
+    assert ex["random"]["standing_share_max"] == 0.0 and ex["nominal_makespan_s"] == pytest.approx(s["makespan_s"])
+    stage = ["experiment=tiny", f"paths.data={tmp}/data", *overrides, f"plan={plan}"]
+    out = _script("check_round").check(tmp / "one_boom_trajectory.csv", stage, execute=50)
+    run = out["execution"]
+    assert not out["violations"] and run["checked"] and run["deadlocks"] == run["violating_draws"] == 0
+    assert run["makespan_s"]["nominal"] == pytest.approx(run["makespan_s"]["trajectory"], abs=1.0)
+
+
 @pytest.mark.skipif(shutil.which("chromium") is None and shutil.which("chromium-browser") is None,
                     reason="no chromium (apt-get install -y chromium)")
 def test_replay_renders_in_a_headless_browser(small_round):
@@ -257,6 +285,17 @@ def test_round_benchmark_writes_its_table_and_each_cells_trajectory(face_plan, m
     traj = pd.read_csv(tmp / "data" / "benchmark" / "rounds" / "gen20_single_trajectory.csv", keep_default_na=False)
     assert traj["t"].max() == pytest.approx(row["makespan_s"])
     assert (traj["event"] == "collar").sum() == row["drilled"]
+    # the round made robust as the stage makes it (one boom: nothing to wait for, no price), and every
+    # cell's set written as the stage writes it, so that the independent checker executes it
+    assert row["plan_makespan_s"] == pytest.approx(row["makespan_s"]) and row["robust_price_pct"] == 0
+    assert row["interlocks"] == 0 and row["deadlocks"] == 0 and row["standing_p95_pct"] == 0
+    assert 1.0 < row["exec_p95"] < 1.5  # drilling drawn 0.7-1.5x: later than planned, never by more than 1.5x
+    stage = ["experiment=tiny", f"paths.data={tmp}/data", *FAST, "rig=single"]
+    stage.remove("rig=twin")
+    out = _script("check_round").check(tmp / "data" / "benchmark" / "rounds" / "gen20_single_trajectory.csv", stage,
+                                       execute=50)
+    assert not out["violations"] and out["holes"]["drilled"] == row["drilled"], out["violations"]
+    assert out["execution"]["checked"] and out["execution"]["violating_draws"] == 0
 
 
 def test_the_face_is_drawn_as_seen_from_the_rig(small_round):

@@ -4,7 +4,12 @@ Faces: the demo face and generated faces (:func:`pipeline.plans.faces.generated_
 about the requested hole counts, each designed for the rig's own drift (trio: the 8 m x 7 m one).
 Rigs: any of conf/rig/. Per cell: makespan, lower bound and ratio, naive and nearest, moving and
 waiting seconds, planning seconds, smallest boom-boom clearance, waits, fallback, moves not clear.
-Every cell uses :func:`pipeline.round.from_plan.schedule_round`, as the stage does.
+Every cell uses :func:`pipeline.round.from_plan.schedule_round`, as the stage does, and (given the
+``execution`` settings, as the stage passes them) the round made robust as the stage makes it
+(:func:`pipeline.execution.robust.robust_finish`): the clock-timed plan's makespan, the nominal one with
+interlocks (the price of robustness), the interlocks, and the draws' makespan ratios and standing shares.
+With a ``trajectories`` folder every cell's set is written there as the stage writes a round (plan, round
+table, JSON, trajectory, actions, interlocks), so the independent checker can execute each one.
 """
 
 from __future__ import annotations
@@ -16,11 +21,14 @@ from pathlib import Path
 
 import pandas as pd
 
-from pipeline.core.io import write_csv
+from pipeline.core.io import write_csv, write_json
 from pipeline.data.holes import joint_box
+from pipeline.execution.montecarlo import ExecutionSettings
+from pipeline.execution.robust import robust_finish
 from pipeline.geometry.collision import SafetyModel
 from pipeline.geometry.rig import Rig
 from pipeline.motion.timing import MotionModel
+from pipeline.plans.csv_plan import write_csv_plan
 from pipeline.plans.demo_face import demo_face
 from pipeline.plans.faces import generated_face
 from pipeline.plans.reach import reach_table, rig_solvers
@@ -41,10 +49,12 @@ class BenchRig:
 
 def round_benchmark(faces: Sequence, rigs: Sequence[BenchRig], hybrid: HybridSettings, settings: RoundSettings,
                     first_start: Callable, seed: int = 0, say=print, trajectories: Path | None = None,
-                    box: dict | None = None) -> pd.DataFrame:
+                    box: dict | None = None, execution: ExecutionSettings | None = None) -> pd.DataFrame:
     """One row per (face, rig); ``faces``: "demo" or hole counts; ``trajectories``: a folder to write
-    each cell's trajectory file into (``<face>_<rig>_trajectory.csv``); ``box``: the reach table's
-    joint box (``holes.sup.box``, as the stage passes it: None is the full ranges)."""
+    each cell's set into (``<face>_<rig>.csv``, the plan, and its ``_round.csv``, ``_round.json``,
+    ``_trajectory.csv``, ``_actions.csv``, ``_interlocks.csv``); ``box``: the reach table's joint box
+    (``holes.sup.box``, as the stage passes it: None is the full ranges); ``execution``: the round made
+    robust and its draws (module docstring), None for the clock-timed round alone."""
     rows = []
     for case in rigs:
         rig, safety, motions, rig_name = case.rig, case.safety, case.motions, case.rig.name
@@ -54,7 +64,8 @@ def round_benchmark(faces: Sequence, rigs: Sequence[BenchRig], hybrid: HybridSet
             solvers = rig_solvers(rig, first_start, hybrid, joint_box(rig.booms[0].boom, box))
             reach = reach_table(plan, rig, solvers, "hybrid")
             reach_s = time.perf_counter() - started
-            res = schedule_round(rig, plan, reach, motions, settings, True, True)
+            finish = robust_finish(execution) if execution is not None else None
+            res = schedule_round(rig, plan, reach, motions, settings, True, True, finish=finish)
             s = res.summary
             row = {"face": f"demo ({len(plan)})" if face == "demo" else f"gen {face} ({len(plan)})",
                    "rig": rig_name, "holes": len(plan), "drilled": s["holes_drilled"],
@@ -68,22 +79,47 @@ def round_benchmark(faces: Sequence, rigs: Sequence[BenchRig], hybrid: HybridSet
                    "conflicts_left": s["conflicts_left"],
                    "detours": s["moves"].get("retract", 0) + s["moves"].get("planned", 0),
                    "moves_failed": s["moves"].get("failed", 0), "seed": s.get("seed"), "stopped": s.get("stopped"),
-                   "baselines_s": res.timings["baselines_s"]}
+                   "baselines_s": res.timings["baselines_s"], **_executed(res.finished)}
             rows.append(row)
             if trajectories is not None:  # for the independent check (scripts/check_round.py)
-                tag = "demo" if face == "demo" else f"gen{face}"
-                write_csv(res.trajectory, trajectories / f"{tag}_{rig_name}_trajectory.csv")
+                stem = trajectories / f"{'demo' if face == 'demo' else f'gen{face}'}_{rig_name}"
+                plan_file = stem.with_name(stem.name + ".csv")
+                write_csv_plan(plan, plan_file)
+                write_csv(res.round, stem.with_name(stem.name + "_round.csv"))
+                summary = {"plan": str(plan_file.resolve()), **s}
+                if res.finished is not None:
+                    summary["execution"] = res.finished.summary
+                    write_csv(res.finished.actions, stem.with_name(stem.name + "_actions.csv"))
+                    write_csv(res.finished.interlocks, stem.with_name(stem.name + "_interlocks.csv"))
+                write_json(summary, stem.with_name(stem.name + "_round.json"))
+                write_csv(res.trajectory, stem.with_name(stem.name + "_trajectory.csv"))
             say(f"{row['face']} x {rig_name}: makespan {row['makespan_s']:.0f} s, bound {row['lower_bound_s']:.0f} s, "
                 f"naive {row['naive_s']:.0f} s, nearest {row['nearest_s']:.0f} s, planned in {row['planning_s']:.1f} s")
     return pd.DataFrame(rows)
 
 
+def _executed(ex) -> dict:
+    """The robust round's columns (NaN where the round was not made robust)."""
+    nan = float("nan")
+    if ex is None:
+        return {"plan_makespan_s": nan, "robust_price_pct": nan, "interlocks": nan, "robust": nan,
+                "deadlocks": nan, "exec_p50": nan, "exec_p95": nan, "standing_p95_pct": nan}
+    s, r = ex.summary, ex.summary["random"] or {}
+    return {"plan_makespan_s": s["plan_makespan_s"],
+            "robust_price_pct": 100.0 * (s["nominal_makespan_s"] / s["plan_makespan_s"] - 1.0),
+            "interlocks": s["interlocks"]["interlocks"], "robust": bool(s["robust"]), "deadlocks": s["deadlocks"],
+            "exec_p50": r.get("makespan_ratio_p50", nan), "exec_p95": r.get("makespan_ratio_p95", nan),
+            "standing_p95_pct": 100.0 * r.get("standing_share_p95", nan)}
+
+
 def markdown(table: pd.DataFrame) -> str:
     cols = ["face", "rig", "drilled", "makespan_s", "lower_bound_s", "ratio", "naive_s", "nearest_s", "moving_s",
-            "waiting_s", "planning_s", "min_boom_clearance_m", "waits", "sequential", "detours", "moves_failed"]
+            "waiting_s", "planning_s", "min_boom_clearance_m", "waits", "sequential", "detours", "moves_failed",
+            "plan_makespan_s", "robust_price_pct", "interlocks", "exec_p95", "standing_p95_pct"]
     out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for _, r in table.iterrows():
-        cells = [f"{r[c]:.3f}" if c in ("ratio", "min_boom_clearance_m") else
+        cells = [f"{r[c]:.3f}" if c in ("ratio", "min_boom_clearance_m", "exec_p95") else
+                 f"{r[c]:.2f}" if c in ("robust_price_pct", "standing_p95_pct") else
                  f"{r[c]:.0f}" if isinstance(r[c], float) and c != "planning_s" else
                  f"{r[c]:.1f}" if c == "planning_s" else str(r[c]) for c in cols]
         out.append("| " + " | ".join(cells) + " |")

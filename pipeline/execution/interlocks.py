@@ -185,7 +185,8 @@ def robust_round(inst: Instance, tl: Timeline, oracle, max_flips: int | None = N
     stats = {"actions": len(acts), "pairs_screened": len(conf.pairs), "conflicting_pairs": len(pairs),
              "overlapping_in_plan": int(overlap.sum()), "interlocks_before_reduction": len(all_edges),
              "interlocks": len(kept), "flips": len(flipped), "conflicts_left": int(n_left),
-             "min_clearance_m": float(least), "plan_makespan_s": tl.makespan,
+             "min_clearance_m": float(least) if np.isfinite(least) else None,  # None: one boom, no pair
+             "plan_makespan_s": tl.makespan,
              "nominal_makespan_s": nominal.makespan, "clearance_evaluations": conf.evaluations,
              "sweeps_s": swept, "build_s": time.perf_counter() - started}
     return RobustRound(timed, kept, nominal, conf, stats, problem)

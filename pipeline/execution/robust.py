@@ -10,6 +10,7 @@ actions and interlocks tables, the draws' summary, and the slowest random draw a
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -47,7 +48,8 @@ def robust_finish(settings: ExecutionSettings, say=None):
         nominal = rr.timeline
         nominal.repairs, nominal.sequential = tl.repairs, tl.sequential  # the plan's waits, now interlocks
         nominal.conflicts_left = int(rr.stats["conflicts_left"])
-        nominal.min_clearance = float(rr.stats["min_clearance_m"])
+        least = rr.stats["min_clearance_m"]
+        nominal.min_clearance = math.inf if least is None else float(least)
         say(f"interlocks: {rr.stats['interlocks']} ({rr.stats['conflicting_pairs']} conflicting pairs of actions, "
             f"{rr.stats['overlapping_in_plan']} serialised); nominal makespan {nominal.makespan:.1f} s")
         d = draws(rr.actions, settings)

@@ -2,7 +2,7 @@
 
 ``<stem>_round.csv`` (the round table), ``<stem>_trajectory.csv`` (spec section 7), ``<stem>_round.json``
 (the summary), ``<stem>_round_face.png``, ``<stem>_round_gantt.png`` and ``<stem>_round_replay.html``;
-for a rig of several booms also ``<stem>_actions.csv`` and ``<stem>_interlocks.csv`` (spec section 8),
+for every rig also ``<stem>_actions.csv`` and ``<stem>_interlocks.csv`` (spec section 8),
 ``<stem>_round_executed.png`` (realised makespans) and ``<stem>_round_executed_replay.html`` (the
 slowest drawn round, executed by events).
 
