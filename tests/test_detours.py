@@ -23,7 +23,7 @@ from pipeline.round.detours import FAILED, RETRACT, STRAIGHT, MoveBook
 from pipeline.round.from_plan import round_instance
 from pipeline.round.oracle import _positions
 from pipeline.round.problem import Instance, drill_phases
-from pipeline.round.seeds import balanced_strips, sweep_routes
+from pipeline.round.seeds import balanced_strips, clear_ends, sweep_routes
 from pipeline.round.settings import RoundSettings
 from pipeline.solvers.hybrid import HybridSettings
 
@@ -172,6 +172,25 @@ def test_sweep_strips_balance_drilling_and_keep_the_booms_apart():
             key = -direction * y[r]
             band = np.floor((key - (-direction * y).min()) / 1.0)
             assert (np.diff(band) >= 0).all()
+
+
+def test_clear_ends_starts_and_ends_each_route_where_park_is_not_blocked():
+    """A route whose first (last) hole's move from (to) park is blocked by another boom at park takes the
+    nearest hole along it whose park move is clear first (last); the rest keep their order; a route
+    with clear ends and one with no clear hole stay as they are; precedence pairs hold."""
+    H = 8
+    blocked = np.zeros((3, H + 1, H + 1), bool)
+    blocked[0, H, [0, 1]] = True  # boom 0: holes 0 and 1 not reachable from park
+    blocked[0, [7, 6], H] = True  # ... and 7 and 6 not left for park
+    blocked[2, H, :H] = blocked[2, :H, H] = True  # boom 2: nothing clear, nothing to choose
+    routes = [list(range(H)), [3, 4, 5], [1, 2]]
+    out = clear_ends(routes, blocked)
+    assert out[0] == [2, 0, 1, 3, 4, 6, 7, 5]
+    assert not blocked[0, H, out[0][0]] and not blocked[0, out[0][-1], H]
+    assert out[1] == [3, 4, 5] and out[2] == [1, 2]
+    kept = clear_ends(routes, blocked, [(0, 2)])[0]
+    assert kept.index(0) < kept.index(2) and sorted(kept) == list(range(H))  # precedence 0 before 2 kept
+    assert clear_ends(routes, np.zeros_like(blocked)) == routes
 
 
 def test_book_refines_a_short_floor_and_fails_it_without_refinement_or_detours(demo):

@@ -438,3 +438,20 @@ def test_one_boom_reversed_parts_two_booms_that_block_each_other():
     assert sorted(map(sorted, alt.routes)) == sorted(map(sorted, routes))
     assert any(a == r[::-1] for a, r in zip(alt.routes, routes, strict=True))
     assert alt.makespan < 0.6 * forward.makespan
+
+
+def test_candidates_rank_by_conflicts_then_failed_moves_then_makespan():
+    """A round with a move nothing made clear loses to one whose moves are all clear, however short it is;
+    conflicts left weigh more than either."""
+    from pipeline.round.planner import _better
+    from pipeline.round.timeline import Timeline
+
+    def tl(makespan, failed=0, conflicts=0):
+        return Timeline([[0]], [np.zeros(2)], [np.array([1.0, makespan])], 1, failed_moves=failed,
+                        conflicts_left=conflicts)
+
+    assert _better(tl(3000.0), tl(2500.0, failed=1))
+    assert not _better(tl(2500.0, failed=1), tl(3000.0))
+    assert _better(tl(2500.0, failed=1), tl(2000.0, conflicts=1))
+    assert _better(tl(2999.0), tl(3000.0)) and not _better(tl(3000.0), tl(3000.0))
+    assert _better(tl(9999.0, failed=5), None)

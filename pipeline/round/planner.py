@@ -1,8 +1,9 @@
 """Plan a round: seed, route, time with waits, feed the conflicts back into the routing, repeat.
 
-0. the sweeps (:mod:`pipeline.round.seeds`) and the spec's baselines (naive, nearest) are timed (``_time_seeds``); the
-   best is the first candidate and the routing's initial solution (so the optimised round is never
-   worse than the better baseline);
+0. the sweeps (:mod:`pipeline.round.seeds`, also with each boom's first and last hole one it can reach
+   from park while the others stand there: :func:`pipeline.round.seeds.clear_ends`) and the spec's baselines
+   (naive, nearest) are timed (``_time_seeds``); the best is the first candidate and the routing's
+   initial solution (so the optimised round is never worse than the better baseline);
 1. :func:`pipeline.round.routing.route` allocates and orders the holes (makespan, no conflicts known; moves
    another boom at park blocks cost more: ``_routing_costs``);
 2. every candidate's moves are looked at before it is timed (:class:`pipeline.round.detours.MoveBook`:
@@ -41,7 +42,7 @@ from pipeline.round.detours import PLANNED, RETRACT, MoveBook
 from pipeline.round.oracle import ConflictOracle, KinematicOracle
 from pipeline.round.problem import Instance
 from pipeline.round.routing import RoutingFailed, route
-from pipeline.round.seeds import sweep_routes
+from pipeline.round.seeds import clear_ends, sweep_routes
 from pipeline.round.settings import RoundSettings
 from pipeline.round.timeline import Timeline
 from pipeline.round.waits import place_waits
@@ -70,7 +71,10 @@ BASELINES = ("naive", "nearest")  # the spec's, timed after the planning with th
 
 
 def _better(a: Timeline, b: Timeline | None) -> bool:
-    return b is None or (a.conflicts_left, a.makespan) < (b.conflicts_left, b.makespan)
+    """Fewer conflicts left, then fewer failed moves, then the shorter makespan: a round with a move
+    nothing made clear is published only where no candidate has all its moves clear."""
+    return b is None or (a.conflicts_left, a.failed_moves, a.makespan) < (b.conflicts_left, b.failed_moves,
+                                                                         b.makespan)
 
 
 class _Timer:
@@ -83,7 +87,10 @@ class _Timer:
     def __call__(self, routes: list[list[int]]) -> Timeline:
         if self.book is not None:
             self.inst = self.book.ensure(self.inst, routes)
-        return place_waits(self.inst, routes, self.oracle, self.settings)
+        tl = place_waits(self.inst, routes, self.oracle, self.settings)
+        if self.book is not None:
+            tl.failed_moves = len(self.book.kinds(routes, self.inst.starts)[1])
+        return tl
 
 
 def make_book(inst: Instance, oracle, settings: RoundSettings) -> MoveBook | None:
@@ -142,6 +149,14 @@ def _time_seeds(inst: Instance, timer: _Timer, clock: _Clock, settings: RoundSet
     start = _Start()
     if seeded(inst):
         start.seeds = {kind: seed_routes(inst, kind, settings.sweep_band_m) for kind in SEEDS}
+        if inst.start is None and inst.n_booms > 1 and isinstance(timer.oracle, KinematicOracle):
+            # each sweep also with ends clear of the other booms' parks, where that changes it (both timed:
+            # a blocked first move is often cleared by a wait, the other boom leaving park at the start)
+            blocked = park_blocked(inst, timer.oracle, 0, settings.blocked_screen_m)  # the moves from and to park
+            for kind in SEEDS:
+                clear = clear_ends(start.seeds[kind], blocked, inst.precedence)
+                if clear != start.seeds[kind]:
+                    start.seeds[f"{kind}, ends clear"] = clear
     start.seeds.update({k: first_where_standing(inst, r) for k, r in (candidates or {}).items()})
     if not start.seeds:
         return start

@@ -61,3 +61,29 @@ def sweep_routes(inst: Instance, direction: int = -1, band_m: float = 1.0) -> li
         order = mine[np.lexsort((up[mine], band[mine]))]
         routes.append(stable_order([int(h) for h in order], inst.precedence))
     return routes
+
+
+def clear_ends(routes: list[list[int]], park_blocked: np.ndarray, precedence=()) -> list[list[int]]:
+    """Each route with a first hole its boom can reach from park, and a last one it can go home from,
+    while the other booms stand at park (``park_blocked``: ``(B, H + 1, H + 1)``, the planner's
+    :func:`pipeline.round.planner.park_blocked`; park is node H).
+
+    A sweep starts each boom at one end of its strip; on a face where that end's move from park passes
+    another boom's park (gen 150 ``trio``: boom M's first hole), no wait can part the two (the other
+    boom stands there until it starts, or from its end), and the round falls back to one boom at a
+    time, which meets the same move. The nearest hole along the route whose park move is clear is
+    taken first (last) instead; the rest keep their order; precedence pairs kept."""
+    out = []
+    for b, r in enumerate(routes):
+        r = list(r)
+        H = park_blocked.shape[1] - 1
+        if len(r) > 1 and park_blocked[b, H, r[0]]:
+            k = next((k for k, h in enumerate(r) if not park_blocked[b, H, h]), None)
+            if k is not None:
+                r.insert(0, r.pop(k))
+        if len(r) > 2 and park_blocked[b, r[-1], H]:
+            k = next((k for k in range(len(r) - 1, 0, -1) if not park_blocked[b, r[k], H]), None)
+            if k is not None:
+                r.append(r.pop(k))
+        out.append(stable_order(r, precedence))
+    return out

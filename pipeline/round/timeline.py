@@ -67,6 +67,7 @@ class Timeline:
     conflicts_left: int = 0
     sequential: bool = False
     min_clearance: float = math.inf  # smallest sampled boom-boom clearance (m, less d_boom)
+    failed_moves: int = 0  # moves nothing made clear of self and tunnel (set by the planner's timer)
     waits: dict = field(default_factory=dict)  # how the waits were placed (method, and the exact solver's certificate)
 
     @property
