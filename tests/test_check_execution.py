@@ -226,6 +226,41 @@ def test_a_drill_window_that_is_not_the_holes(base):
     _fails(base, _set(base, "drillhole", acts=other), f"drill of hole {base[2].loc[3, 'hole_id']} spans", code=2)
 
 
+def test_a_drill_whose_joints_change_is_refused(base):
+    """Spec section 8: a drill is at constant joints, which is what lets an executed drill last any time."""
+    def nudge(t):  # L's first drill row moved by 1 mrad on q1
+        k = t.index[(t["boom"] == "L") & (t["event"] == "drill")][0]
+        t.loc[k, "q1"] = t.loc[k, "q1"] + 1e-3
+        return t
+
+    _fails(base, _set(base, "drillmoves", traj=nudge), "the joints change by 0.001", "a drill is at constant joints",
+           code=2)
+
+
+def test_a_stretched_drill_stands_at_its_hole_not_in_its_next_move():
+    """An executed window inside a drill that runs longer than planned: the boom stands at the hole for the
+    whole of it. Laying its rows out by the drill's start (as a move's are) would run past the planned end
+    into the boom's next move, and report that move's configurations as the drill's (a false violation
+    found on the round benchmark's gen 150 trio)."""
+    rows_mod = importlib.import_module("round_check.files")
+    executed = importlib.import_module("round_check.executed")
+    t = np.array([0.0, 1.0, 2.0, 50.0, 60.0, 61.0, 62.0])  # a move, the drill (collar..end), the next move
+    q = np.zeros((len(t), 8))
+    q[:2, 0] = [0.5, 0.2]
+    q[2:5, 0] = 0.2  # at the hole from t = 1 to the end of the drill at 60
+    q[5:, 0] = [0.6, 0.9]  # then away
+    r = rows_mod.BoomRows(t, q, np.array(["park", "move", "collar", "drill", "retract", "move", "move"]),
+                          np.array(["", "", "h", "h", "h", "", ""]), np.arange(len(t)))
+    planned = np.array([[0.0, 0.0], [0.0, 1.0], [1.0, 1.0], [1.0, 60.0], [60.0, 60.0], [60.0, 62.0], [62.0, 62.0]])
+    # the drill started at 1 and, at 1.5x, ends at 89.5: the window 70..80 lies past its planned end
+    still = executed._window_rows(r, planned, 3, 1.0, 70.0, 80.0, still=True)
+    assert np.allclose(still.q[:, 0], 0.2) and still.t[0] == 70.0 and still.t[-1] == 80.0
+    shifted = executed._window_rows(r, planned, 3, 1.0, 70.0, 80.0)  # what a move's layout would give
+    assert shifted.q[:, 0].max() > 0.2  # the next move's configurations: the fault the still layout avoids
+    move = executed._window_rows(r, planned, 5, 100.0, 100.5, 101.5)  # a move shifted to its executed start
+    assert np.allclose(move.q[:, 0], np.interp([60.5, 61.0, 61.5], t, q[:, 0]))
+
+
 def test_actions_that_disagree_with_the_trajectory(base):
     def late(a):  # L's first move starts a second late: the boom moves before its first action
         a.loc[0, "t_start"] = 1.0

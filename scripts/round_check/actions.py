@@ -209,6 +209,11 @@ def _drills(acts: Actions, k: np.ndarray, r: BoomRows, where: str, trajectory: P
             raise InputError(f"{where}, row {acts.line[i]}: drill of hole {h} spans {acts.t_start[i]!r}.."
                              f"{acts.t_end[i]!r}; in {trajectory} the hole's collar to the end of its retraction "
                              f"is {span}")
+        moved = np.abs(r.q[c + 1:end + 1] - r.q[c]).max() if end > c else 0.0
+        if moved > HOLD_TOL:  # an executed drill lasts what the rock takes: its joints must not depend on when
+            raise InputError(f"{where}, row {acts.line[i]}: drill of hole {h}: the joints change by {moved:.3g} "
+                             f"between its collar and the end of its retraction in {trajectory} (rows "
+                             f"{r.line[c]}-{r.line[end]}); a drill is at constant joints (spec section 8)")
     extra = sorted(set(r.hole[collars]) - set(acts.hole[k]))
     if extra:
         raise InputError(f"{where}: collars hole(s) {extra} in {trajectory} that are no drill action of it")

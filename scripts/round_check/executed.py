@@ -42,10 +42,13 @@ def durations(acts: Actions, spec_s: dict[str, float], dr: Draws) -> np.ndarray:
     return dur
 
 
-def _window_rows(r: BoomRows, planned: np.ndarray, episode: int, s_exec: float, w0: float, w1: float) -> BoomRows:
-    """A boom's rows over executed [w0, w1]: an action's rows shifted to its executed start, a pause
-    standing still."""
-    if episode % 2 == 0:
+def _window_rows(r: BoomRows, planned: np.ndarray, episode: int, s_exec: float, w0: float, w1: float,
+                 still: bool = False) -> BoomRows:
+    """A boom's rows over executed [w0, w1]: a move's rows shifted to its executed start (a move keeps
+    its planned duration), a pause or a drill (``still``: at constant joints, spec section 8, checked when
+    the actions are read) standing still. A drill lasts what the draw says, not what the plan did: its
+    rows shifted by its start would run past its planned end into the boom's next action."""
+    if episode % 2 == 0 or still:
         t = np.array([w0, w1]) if w1 > w0 else np.array([w0])
         q = np.repeat(np.stack([np.interp(planned[episode, 0], r.t, r.q[:, j]) for j in range(r.q.shape[1])])[None],
                       len(t), 0)
@@ -58,6 +61,11 @@ def _window_rows(r: BoomRows, planned: np.ndarray, episode: int, s_exec: float, 
         t = tp + shift
     n = len(t)
     return BoomRows(t, q, np.full(n, "move"), np.full(n, ""), np.zeros(n, np.int64))
+
+
+def _drill(acts: Actions, b: int, episode: int) -> bool:
+    """Whether episode ``episode`` of boom b (odd: action ``episode // 2``) is a drill."""
+    return episode % 2 == 1 and acts.kind[acts.first[b] + episode // 2] == "drill"
 
 
 def check(st: Settings, rows: dict[str, BoomRows], acts: Actions, locks: Interlocks, g: Graph, dr: Draws,
@@ -185,11 +193,11 @@ def _boom_boom(st, rows, acts, dr, start, end, spacing_m, levels):
             i, j = int(ea[p]), int(eb[p])
             w0, w1 = max(Sa[d, p], Sb[d, p]), min(Ea[d, p], Eb[d, p])
             w1 = w0 if not np.isfinite(w1) else w1  # two final pauses: both stand still
-            key = (a, b, i, j, round(w0 - Sa[d, p], 9) if i % 2 else 0.0, round(w0 - Sb[d, p], 9) if j % 2 else 0.0,
-                   round(w1 - w0, 9))
+            key = (a, b, i, j, round(w0 - Sa[d, p], 9) if i % 2 and not _drill(acts, a, i) else 0.0,
+                   round(w0 - Sb[d, p], 9) if j % 2 and not _drill(acts, b, j) else 0.0, round(w1 - w0, 9))
             if key not in swept:
-                ra = _window_rows(rows[acts.booms[a]], planned[a], i, Sa[d, p], w0, w1)
-                rb = _window_rows(rows[acts.booms[b]], planned[b], j, Sb[d, p], w0, w1)
+                ra = _window_rows(rows[acts.booms[a]], planned[a], i, Sa[d, p], w0, w1, _drill(acts, a, i))
+                rb = _window_rows(rows[acts.booms[b]], planned[b], j, Sb[d, p], w0, w1, _drill(acts, b, j))
                 pair = dataclasses.replace(st, booms=[st.booms[names.index(acts.booms[a])],
                                                       st.booms[names.index(acts.booms[b])]])
                 res = Sweep(pair, {acts.booms[a]: ra, acts.booms[b]: rb}, spacing_m, levels=levels,
