@@ -149,7 +149,8 @@ def _time_seeds(inst: Instance, timer: _Timer, clock: _Clock, settings: RoundSet
     start = _Start()
     if seeded(inst):
         start.seeds = {kind: seed_routes(inst, kind, settings.sweep_band_m) for kind in SEEDS}
-        if inst.start is None and inst.n_booms > 1 and isinstance(timer.oracle, KinematicOracle):
+        kinematic = isinstance(timer.oracle, KinematicOracle)
+        if settings.clear_ends and inst.start is None and inst.n_booms > 1 and kinematic:
             # each sweep also with ends clear of the other booms' parks, where that changes it (both timed:
             # a blocked first move is often cleared by a wait, the other boom leaving park at the start)
             blocked = park_blocked(inst, timer.oracle, 0, settings.blocked_screen_m)  # the moves from and to park

@@ -50,6 +50,7 @@ class RoundSettings:
     budget_s: float | None = field(default=None, metadata=rule(gt=0))
     stop_ratio: float = field(default=1.02, metadata=rule(ge=1))
     sweep_band_m: float = field(default=1.0, metadata=rule(gt=0))
+    clear_ends: bool = True  # each sweep also timed with its ends clear of the other booms' parks
 
     @property
     def reproducible(self) -> bool:
