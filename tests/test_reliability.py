@@ -425,3 +425,23 @@ def test_a_store_locked_by_another_process_gets_a_named_wait_then_a_clear_error(
     assert time.monotonic() - start < 90
     with pytest.raises(ConfigError, match=r"tracking.busy_timeout_s = -1: expected a number of seconds >= 0"):
         TrackingSettings.from_config({**node, "busy_timeout_s": -1})
+
+
+def test_a_swallowed_signal_stops_a_set_before_it_is_published(tmp_path):
+    """A SIGTERM whose exception a library swallowed (OR-Tools runs Python callbacks inside its solve) is
+    still pending when the set is published: nothing is renamed, the previous output stays."""
+    from pipeline.core import signals
+    from pipeline.core.io import publish
+
+    new, out = tmp_path / "new.csv", tmp_path / "out.csv"
+    new.write_text("new set\n")
+    out.write_text("the previous set\n")
+    signals._pending = signal.SIGTERM
+    try:
+        with pytest.raises(signals.Terminated):
+            publish({new: out}, tmp_path / "out.lock")
+    finally:
+        signals._pending = None
+    assert out.read_text() == "the previous set\n" and new.read_text() == "new set\n"
+    publish({new: out}, tmp_path / "out.lock")  # no signal pending: published
+    assert out.read_text() == "new set\n"

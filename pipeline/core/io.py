@@ -19,6 +19,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from pipeline.core.errors import InputError
+from pipeline.core.signals import raise_if_terminated
 
 
 def atomic_write(path: str | Path, write: Callable[[str], None]) -> None:
@@ -118,6 +119,7 @@ def publish(files: dict[Path, Path], lock: Path, remove: Iterable[Path] = ()) ->
     in_the_way = [str(dst) for dst in files.values() if Path(dst).is_dir() and not Path(dst).is_symlink()]
     if in_the_way:  # checked before the first rename: a set is published whole or not at all
         raise InputError(f"cannot publish: {', '.join(in_the_way)} is a folder; the set needs that name")
+    raise_if_terminated()  # a signal whose exception a library swallowed (a native solver's callback) stops it here
     with FileLock(str(lock), timeout=600):
         for src, dst in files.items():
             Path(dst).parent.mkdir(parents=True, exist_ok=True)

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
+from pipeline.core.signals import raise_if_terminated
 from pipeline.motion.checks import check_straight_moves
 from pipeline.motion.path import unwrapped
 from pipeline.round.baselines import naive_routes, nearest_routes
@@ -85,6 +86,7 @@ class _Timer:
         self.inst, self.oracle, self.settings, self.book = inst, oracle, settings, book
 
     def __call__(self, routes: list[list[int]]) -> Timeline:
+        raise_if_terminated()  # between candidates: a signal OR-Tools' callbacks swallowed stops the planning here
         if self.book is not None:
             self.inst = self.book.ensure(self.inst, routes)
         tl = place_waits(self.inst, routes, self.oracle, self.settings)
