@@ -455,3 +455,20 @@ def test_candidates_rank_by_conflicts_then_failed_moves_then_makespan():
     assert _better(tl(2500.0, failed=1), tl(2000.0, conflicts=1))
     assert _better(tl(2999.0), tl(3000.0)) and not _better(tl(3000.0), tl(3000.0))
     assert _better(tl(9999.0, failed=5), None)
+
+
+def test_more_sweep_bands_are_read_and_a_bad_one_is_named():
+    assert parse_round({"sweep_more_bands_m": [0.5, 2]}).sweep_more_bands_m == [0.5, 2]
+    assert parse_round({}).sweep_more_bands_m == [0.75, 1.5, 2.0]
+    for bad in ([0], [-1.0], [True], [float("inf")]):
+        with pytest.raises(ConfigError, match=r"sweep_more_bands_m"):
+            parse_round({"sweep_more_bands_m": bad})
+
+
+def test_a_seed_with_the_routes_of_another_is_timed_once():
+    from pipeline.round.planner import _add_seed
+
+    seeds = {"sweep -y": [[0, 1], [2]]}
+    _add_seed(seeds, "sweep -y, band 2 m", [[0, 1], [2]])
+    _add_seed(seeds, "sweep -y, band 0.75 m", [[1, 0], [2]])
+    assert list(seeds) == ["sweep -y", "sweep -y, band 0.75 m"]

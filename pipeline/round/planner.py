@@ -1,6 +1,7 @@
 """Plan a round: seed, route, time with waits, feed the conflicts back into the routing, repeat.
 
-0. the sweeps (:mod:`pipeline.round.seeds`, also with each boom's first and last hole one it can reach
+0. the sweeps (:mod:`pipeline.round.seeds`, in bands of ``sweep_band_m`` and ``sweep_more_bands_m``, each
+   also with each boom's first and last hole one it can reach
    from park while the others stand there: :func:`pipeline.round.seeds.clear_ends`) and the spec's baselines
    (naive, nearest) are timed (``_time_seeds``); the best is the first candidate and the routing's
    initial solution (so the optimised round is never worse than the better baseline);
@@ -151,15 +152,16 @@ def _time_seeds(inst: Instance, timer: _Timer, clock: _Clock, settings: RoundSet
     start = _Start()
     if seeded(inst):
         start.seeds = {kind: seed_routes(inst, kind, settings.sweep_band_m) for kind in SEEDS}
+        for band in settings.sweep_more_bands_m:  # the best band depends on the face (docs/design.md)
+            for kind in SEEDS:
+                _add_seed(start.seeds, f"{kind}, band {band:g} m", seed_routes(inst, kind, band))
         kinematic = isinstance(timer.oracle, KinematicOracle)
         if settings.clear_ends and inst.start is None and inst.n_booms > 1 and kinematic:
             # each sweep also with ends clear of the other booms' parks, where that changes it (both timed:
             # a blocked first move is often cleared by a wait, the other boom leaving park at the start)
             blocked = park_blocked(inst, timer.oracle, 0, settings.blocked_screen_m)  # the moves from and to park
-            for kind in SEEDS:
-                clear = clear_ends(start.seeds[kind], blocked, inst.precedence)
-                if clear != start.seeds[kind]:
-                    start.seeds[f"{kind}, ends clear"] = clear
+            for kind, routes in list(start.seeds.items()):
+                _add_seed(start.seeds, f"{kind}, ends clear", clear_ends(routes, blocked, inst.precedence))
     start.seeds.update({k: first_where_standing(inst, r) for k, r in (candidates or {}).items()})
     if not start.seeds:
         return start
@@ -176,6 +178,12 @@ def _time_seeds(inst: Instance, timer: _Timer, clock: _Clock, settings: RoundSet
             start.best, start.seed = tl, kind
     start.baselines_s = time.perf_counter() - t_base
     return start
+
+
+def _add_seed(seeds: dict, kind: str, routes: list[list[int]]) -> None:
+    """``routes`` as seed ``kind``, unless a seed already has them (timed once)."""
+    if all(routes != r for r in seeds.values()):
+        seeds[kind] = routes
 
 
 def _routing_costs(inst: Instance, oracle, settings: RoundSettings, book: MoveBook | None,

@@ -50,6 +50,7 @@ class RoundSettings:
     budget_s: float | None = field(default=None, metadata=rule(gt=0))
     stop_ratio: float = field(default=1.02, metadata=rule(ge=1))
     sweep_band_m: float = field(default=1.0, metadata=rule(gt=0))
+    sweep_more_bands_m: list[float] = field(default_factory=lambda: [0.75, 1.5, 2.0])  # more sweeps, other bands
     clear_ends: bool = True  # each sweep also timed with its ends clear of the other booms' parks
 
     @property
@@ -60,6 +61,9 @@ class RoundSettings:
 
 def parse_round(node: Mapping, source: str = "conf/round") -> RoundSettings:
     s = parse(RoundSettings, node, source)
+    for k, band in enumerate(s.sweep_more_bands_m):
+        if isinstance(band, bool) or not isinstance(band, (int, float)) or not band > 0 or band == float("inf"):
+            raise ConfigError(f"{source}.sweep_more_bands_m[{k}] = {band!r}: expected a band width > 0 (m)")
     for k, pair in enumerate(s.precedence):
         if len(pair) != 2:
             raise ConfigError(f"{source}.precedence[{k}] = {pair!r}: expected [hole_id_before, hole_id_after]")
