@@ -1,10 +1,10 @@
 """Plan a round: seed, route, time with waits, feed the conflicts back into the routing, repeat.
 
 0. the sweeps (:mod:`pipeline.round.seeds`, in bands of ``sweep_band_m`` and ``sweep_more_bands_m``, each
-   also with each boom's first and last hole one it can reach
-   from park while the others stand there: :func:`pipeline.round.seeds.clear_ends`) and the spec's baselines
-   (naive, nearest) are timed (``_time_seeds``); the best is the first candidate and the routing's
-   initial solution (so the optimised round is never worse than the better baseline);
+   also with each boom's first and last hole one it can reach from park while the others stand there:
+   :func:`pipeline.round.seeds.clear_ends`) and the spec's baselines (naive, nearest) are timed
+   (``_time_seeds``); the best is the first candidate and the routing's initial solution (so the
+   optimised round is never worse than the better baseline);
 1. :func:`pipeline.round.routing.route` allocates and orders the holes (makespan, no conflicts known; moves
    another boom at park blocks cost more: ``_routing_costs``);
 2. every candidate's moves are looked at before it is timed (:class:`pipeline.round.detours.MoveBook`:
