@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from pipeline.core.io import write_csv, write_json
+from pipeline.core.io import write_csv
 from pipeline.data.holes import joint_box
 from pipeline.execution.montecarlo import ExecutionSettings
 from pipeline.execution.robust import robust_finish
@@ -33,6 +33,7 @@ from pipeline.plans.demo_face import demo_face
 from pipeline.plans.faces import generated_face
 from pipeline.plans.reach import reach_table, rig_solvers
 from pipeline.round.from_plan import schedule_round
+from pipeline.round.output import round_paths, write_round_set
 from pipeline.round.settings import RoundSettings
 from pipeline.solvers.hybrid import HybridSettings
 
@@ -82,20 +83,23 @@ def round_benchmark(faces: Sequence, rigs: Sequence[BenchRig], hybrid: HybridSet
                    "baselines_s": res.timings["baselines_s"], **_executed(res.finished)}
             rows.append(row)
             if trajectories is not None:  # for the independent check (scripts/check_round.py)
-                stem = trajectories / f"{'demo' if face == 'demo' else f'gen{face}'}_{rig_name}"
-                plan_file = stem.with_name(stem.name + ".csv")
-                write_csv_plan(plan, plan_file)
-                write_csv(res.round, stem.with_name(stem.name + "_round.csv"))
-                summary = {"plan": str(plan_file.resolve()), **s}
-                if res.finished is not None:
-                    summary["execution"] = res.finished.summary
-                    write_csv(res.finished.actions, stem.with_name(stem.name + "_actions.csv"))
-                    write_csv(res.finished.interlocks, stem.with_name(stem.name + "_interlocks.csv"))
-                write_json(summary, stem.with_name(stem.name + "_round.json"))
-                write_csv(res.trajectory, stem.with_name(stem.name + "_trajectory.csv"))
+                _write_set(trajectories / f"{'demo' if face == 'demo' else f'gen{face}'}_{rig_name}.csv", plan, res)
             say(f"{row['face']} x {rig_name}: makespan {row['makespan_s']:.0f} s, bound {row['lower_bound_s']:.0f} s, "
                 f"naive {row['naive_s']:.0f} s, nearest {row['nearest_s']:.0f} s, planned in {row['planning_s']:.1f} s")
     return pd.DataFrame(rows)
+
+
+def _write_set(plan_file: Path, plan, res) -> None:
+    """The cell's plan, then its round's set as the stage publishes one (:func:`write_round_set`: staged,
+    the JSON last with each file's MD5), named after the plan."""
+    write_csv_plan(plan, plan_file)
+    summary = {"plan": str(plan_file.resolve()), **res.summary}
+    writers = {"round": lambda p: write_csv(res.round, p), "trajectory": lambda p: write_csv(res.trajectory, p)}
+    if res.finished is not None:
+        summary["execution"] = res.finished.summary
+        writers["actions"] = lambda p: write_csv(res.finished.actions, p)
+        writers["interlocks"] = lambda p: write_csv(res.finished.interlocks, p)
+    write_round_set(round_paths(plan_file, None), summary, writers)
 
 
 def _executed(ex) -> dict:
