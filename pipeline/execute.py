@@ -142,12 +142,13 @@ def _verdict(doc: dict | None) -> dict | None:
     return keep
 
 
-def _instance(cfg, rig, plan, round_settings):
-    """The round's instance and oracle, built from the plan and the rig as ``schedule`` builds them."""
+def _instance(cfg, rig, plan, round_settings, planned_table):
+    """The round's instance and oracle, built from the plan and the rig as ``schedule`` builds them, each
+    planned hole at the joints of the planned round table (the postures the round chose)."""
     from pipeline.data.holes import joint_box
     from pipeline.motion.timing import rig_motions
     from pipeline.plans.reach import reach_table, rig_solvers
-    from pipeline.round.from_plan import round_instance
+    from pipeline.round.from_plan import planned_joints, round_instance
     from pipeline.solvers.hybrid import HybridSettings
     from pipeline.solvers.network_start import first_starts, network_source
 
@@ -160,7 +161,8 @@ def _instance(cfg, rig, plan, round_settings):
                           joint_box(rig.booms[0].boom, None if box is None else as_dict(box)))
     reach = reach_table(plan, rig, solvers, "hybrid")
     motions = rig_motions(as_dict(cfg.motion), rig.booms)
-    inst, oracle, _ = round_instance(rig, plan, reach, motions, round_settings)
+    joints = planned_joints(rig, plan, reach, planned_table, list(rig.booms[0].boom.joint_names))
+    inst, oracle, _ = round_instance(rig, plan, reach, motions, round_settings, joints)
     return inst, oracle
 
 
@@ -191,7 +193,8 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
     names = list(rig.booms[0].boom.joint_names)
     traj = pd.read_csv(planned["trajectory"], keep_default_na=False, dtype={"boom": str, "event": str, "hole_id": str})
     rows = action_rows(traj, acts, names, str(planned["trajectory"]))
-    planned_table = pd.read_csv(planned["round"], keep_default_na=False, dtype={"hole_id": str, "boom": str})
+    planned_table = pd.read_csv(planned["round"], keep_default_na=False, float_precision="round_trip",
+                                dtype={"hole_id": str, "boom": str})
     planned_table = planned_table.replace({"": np.nan}).assign(
         hole_id=planned_table["hole_id"], boom=planned_table["boom"], status=planned_table["status"],
         reason=planned_table["reason"])
@@ -259,7 +262,7 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
                 round_settings = parse_round({**as_dict(cfg.round), **(as_dict(cfg.execute.get("replan_round"))
                                                                          or {})}, "round + execute.replan_round")
                 t0 = time.perf_counter()
-                inst, oracle = _instance(cfg, rig, plan, round_settings)
+                inst, oracle = _instance(cfg, rig, plan, round_settings, planned_table)
                 timings["instance_s"] = time.perf_counter() - t0
                 _check_joints(oracle, st, rows, acts, ids)
                 from pipeline.round.move_file import load_book

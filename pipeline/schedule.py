@@ -60,6 +60,7 @@ from pipeline.plans.read import read_plan
 from pipeline.plans.solutions import spreadsheet_safe
 from pipeline.round.from_plan import schedule_round
 from pipeline.round.output import round_paths, write_round_set
+from pipeline.round.postures import round_postures
 from pipeline.round.problem import precedence_indices
 from pipeline.round.settings import parse_round
 from pipeline.solvers.hybrid import HybridSettings
@@ -144,9 +145,10 @@ def run(cfg: DictConfig) -> dict:
                                   joint_box(rig.booms[0].boom, None if box is None else as_dict(box)))
             reach = reach_table(plan, rig, solvers, "hybrid")
             say(f"reach table: {len(plan)} holes x {len(rig)} booms")
+            postures = round_postures(plan, rig, solvers, reach, motions, round_settings)
             finish = robust_finish(execution, say) if settings.interlocks else None
             res = schedule_round(rig, plan, reach, motions, round_settings, settings.baselines,
-                                 settings.check_moves, say, finish)
+                                 settings.check_moves, say, finish, postures)
         finally:
             close()
         table = with_invalid_rows(res.round, plan)

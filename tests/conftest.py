@@ -119,7 +119,8 @@ def tiny_study(_tiny_study, tmp_path) -> Path:
 CHECK_STAGE = ["rig=twin", "schedule.network=null", "round.solution_limit=20", "round.reopt_rounds=2",
                "schedule.figures=false", "schedule.replay=false", "schedule.baselines=false", "runtime.progress=false",
                "schedule.interlocks=false", "round.clear_ends=false",
-               "round.sweep_more_bands_m=[]"]  # the planner of the round whose R waits at park for L
+               "round.sweep_more_bands_m=[]", "round.postures=1"]  # the planner of the round whose R waits at
+# park for L (its chosen postures need no wait: tests/test_execute.py plans with them)
 
 
 @pytest.fixture(scope="session")

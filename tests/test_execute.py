@@ -17,8 +17,9 @@ from conftest import CHECK_STAGE
 from pipeline.core.config import compose
 from pipeline.core.errors import ConfigError, InputError
 
-STAGE = [s for s in CHECK_STAGE if s != "schedule.interlocks=false"] + ["execution.draws=20", "execute.replay=false",
-                                                                          "execute.figures=false"]
+# the round planned with its postures chosen (round.postures at its default): the hand-on rebuilds them
+STAGE = [s for s in CHECK_STAGE if s not in ("schedule.interlocks=false", "round.postures=1")] + [
+    "execution.draws=20", "execute.replay=false", "execute.figures=false"]
 
 
 @pytest.fixture(scope="module")
@@ -100,7 +101,9 @@ def test_interrupted_hole_is_left_and_the_rest_handed_on(planned, tmp_path):
     out = run(planned, "execute.draw=nominal", f"execute.interrupt.hole={d['hole_id']}", f"execute.interrupt.at_s={at}",
               folder=tmp_path)
     assert out["status"] == "interrupted" and out["holes_left"] == [d["hole_id"]]
-    assert out["interrupt"]["move_book"] is True  # the planner's book, re-used
+    assert out["interrupt"]["move_book"] is True  # the planner's book, re-used: the same joints rebuilt
+    chose = json.loads((tmp / "small_round.json").read_text())["postures"]
+    assert chose["chosen"] and chose["changed"] > 0  # ... from the round table's postures, not the reach table's
     assert out["handed_on"]["robust"] and out["handed_on"]["conflicts_left"] == 0
     assert out["checks"]["realised"]["exit"] == 0, out["checks"]
     table = pd.read_csv(tmp_path / "small_executed_round.csv", keep_default_na=False)

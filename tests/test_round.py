@@ -443,7 +443,7 @@ def test_one_boom_reversed_parts_two_booms_that_block_each_other():
 def test_candidates_rank_by_conflicts_then_failed_moves_then_makespan():
     """A round with a move nothing made clear loses to one whose moves are all clear, however short it is;
     conflicts left weigh more than either."""
-    from pipeline.round.planner import _better
+    from pipeline.round.planner import better as _better
     from pipeline.round.timeline import Timeline
 
     def tl(makespan, failed=0, conflicts=0):

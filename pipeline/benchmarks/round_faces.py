@@ -34,6 +34,7 @@ from pipeline.plans.faces import generated_face
 from pipeline.plans.reach import reach_table, rig_solvers
 from pipeline.round.from_plan import schedule_round
 from pipeline.round.output import round_paths, write_round_set
+from pipeline.round.postures import round_postures
 from pipeline.round.settings import RoundSettings
 from pipeline.solvers.hybrid import HybridSettings
 
@@ -64,9 +65,10 @@ def round_benchmark(faces: Sequence, rigs: Sequence[BenchRig], hybrid: HybridSet
             started = time.perf_counter()
             solvers = rig_solvers(rig, first_start, hybrid, joint_box(rig.booms[0].boom, box))
             reach = reach_table(plan, rig, solvers, "hybrid")
+            postures = round_postures(plan, rig, solvers, reach, motions, settings)
             reach_s = time.perf_counter() - started
             finish = robust_finish(execution) if execution is not None else None
-            res = schedule_round(rig, plan, reach, motions, settings, True, True, finish=finish)
+            res = schedule_round(rig, plan, reach, motions, settings, True, True, finish=finish, postures=postures)
             s = res.summary
             row = {"face": f"demo ({len(plan)})" if face == "demo" else f"gen {face} ({len(plan)})",
                    "rig": rig_name, "holes": len(plan), "drilled": s["holes_drilled"],

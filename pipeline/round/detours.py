@@ -159,6 +159,21 @@ class MoveBook:
             self.status[b, x, y] = kind
             self.reason[(b, x, y)] = m.reason
 
+    def carry(self, other: MoveBook, same: np.ndarray) -> None:
+        """Take ``other``'s answers (straight, detour, failed) for every move between two nodes whose joints
+        are the same in both books' oracles (``same (B, H + 1)`` bool): a move's answer depends on its two
+        configurations alone (and on the parks, which a rig does not change). The round planned again on
+        other postures (:mod:`pipeline.round.postures`) looks again only at moves with a changed end."""
+        keep = same[:, :, None] & same[:, None, :] & (other.status != UNKNOWN)
+        self.status[keep] = other.status[keep]
+        for kind in KINDS:
+            self.floor[kind][keep] = other.floor[kind][keep]
+        self.reason.update({key: r for key, r in other.reason.items() if keep[key]})
+        for key, d in other.durations.items():
+            if keep[key]:
+                self.durations[key] = d
+                self.oracle.set_detour(*key, other.oracle.detour(*key))
+
     def floors(self, routes: list[list[int]], starts: list[int] | None = None) -> dict[str, float | None]:
         """The smallest certified floor of self and tunnel clearance over the routes' moves (m; failed
         moves included, with their straight line's floor; None when no move was looked at)."""

@@ -24,11 +24,13 @@ import numpy as np
 import pandas as pd
 import torch
 
+from pipeline.core.errors import InputError
 from pipeline.geometry.rig import Rig
 from pipeline.plans.model import COLLAR, DrillPlan
 from pipeline.plans.reach import Reach
 from pipeline.plans.solutions import INVALID
-from pipeline.round.planner import RoundPlan, baseline, plan_round
+from pipeline.round.planner import RoundPlan, baseline, better, make_book, plan_round
+from pipeline.round.postures import Postures, choose_postures, posture_bound
 from pipeline.round.problem import precedence_indices
 from pipeline.round.rig_problem import kinematic_round
 from pipeline.round.settings import RoundSettings
@@ -85,15 +87,36 @@ def move_report(inst, rp: RoundPlan, rig: Rig) -> tuple[dict, list[dict]]:
     return counts, rows
 
 
-def round_instance(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: RoundSettings):
-    """The instance, its oracle and each boom's joint solutions ``(H, n)`` of ``plan`` from its reach table."""
+def planned_joints(rig: Rig, plan: DrillPlan, reach: Reach, table: pd.DataFrame, joint_names) -> list[torch.Tensor]:
+    """Per boom ``(H, n)``: the reach table's solutions, with each hole of a planned round table at the
+    joints the round drills it with (the posture it chose, :mod:`pipeline.round.postures`): the
+    instance a round was planned on, rebuilt for a round handed on (``pipeline.execute``)."""
+    ids = plan.holes["hole_id"].astype(str).tolist()
+    joints = [_joints(reach, rig, b, len(ids)).clone() for b in range(len(rig))]
+    index = {h: k for k, h in enumerate(ids)}
+    drilled = table[table["boom"].isin(rig.names) & (table["status"] == "ok")]
+    for row in drilled.itertuples(index=False):
+        h = index.get(str(row.hole_id))
+        if h is None:
+            raise InputError(f"planned round table: hole {row.hole_id!r} is not in the plan")
+        q = torch.tensor([float(getattr(row, n)) for n in joint_names], dtype=D)
+        if not torch.isfinite(q).all():
+            raise InputError(f"planned round table: hole {row.hole_id!r} has no joints ({joint_names})")
+        joints[rig.names.index(str(row.boom))][h] = q
+    return joints
+
+
+def round_instance(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: RoundSettings, joints=None):
+    """The instance, its oracle and each boom's joint solutions ``(H, n)`` of ``plan`` from its reach table
+    (or ``joints``, per boom ``(H, n)``: the postures a round chose, :mod:`pipeline.round.postures`)."""
     ids = plan.holes["hole_id"].astype(str).tolist()
     H = len(ids)
     t = reach.table[reach.table["status"] != INVALID]
     ok = t.assign(ok=t["status"] == "ok").pivot_table(index="boom", columns="hole_id", values="ok", aggfunc="any")
     reach_ok = np.stack([ok.loc[name, ids].to_numpy(bool) if name in ok.index else np.zeros(H, bool)
                          for name in rig.names])
-    joints = [_joints(reach, rig, b, H) for b in range(len(rig))]
+    joints = [_joints(reach, rig, b, H) for b in range(len(rig))] if joints is None else \
+        [torch.as_tensor(q, dtype=D) for q in joints]
     collars = plan.holes[COLLAR].to_numpy(float)
     toes = plan.holes[["toe_x", "toe_y", "toe_z"]].to_numpy(float)
     lengths = np.linalg.norm(toes - collars, axis=1)
@@ -104,20 +127,28 @@ def round_instance(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
 
 
 def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: RoundSettings,
-                   baselines: bool = True, moves: bool = True, say=None, finish=None) -> RoundResult:
+                   baselines: bool = True, moves: bool = True, say=None, finish=None,
+                   postures: Postures | None = None) -> RoundResult:
     """Plan the round of ``plan`` on ``rig`` from its reach table (module docstring). ``finish``:
     ``(instance, timeline, oracle) -> (timeline, extra)``, called on the planned round; the tables and
     the summary are written from the timeline it returns (the execution layer's robust round, re-timed
-    by events: :func:`pipeline.execution.robust.robust_finish`), ``extra`` kept as ``RoundResult.finished``."""
+    by events: :func:`pipeline.execution.robust.robust_finish`), ``extra`` kept as ``RoundResult.finished``.
+    ``postures``: more ok solutions per hole and boom (:func:`pipeline.round.postures.round_postures`):
+    the round is planned again from the postures chosen along the best round's routes while that is
+    better (``round.posture_rounds``); the lower bound is then the least over every alternative."""
     say = say or (lambda _m: None)
     inst, oracle, joints = round_instance(rig, plan, reach, motions, settings)
+    first_oracle = oracle  # the spec's baselines drill the reach table's postures
     started = time.perf_counter()
     rp = plan_round(inst, oracle, settings, progress=say, baselines=baselines)
     say(f"planned in {rp.planning_s:.1f} s: makespan {rp.timeline.makespan:.1f} s")
+    first = rp
+    if postures is not None and postures.k > 1 and inst.start is None and rp.book is not None:
+        rp, oracle, joints = _plan_postures(rig, plan, reach, motions, settings, postures, rp, oracle, joints, say)
     naive = nearest = None
     if baselines:
-        naive = rp.baselines.get("naive") or baseline(rp.inst, oracle, "naive", settings, rp.book)
-        nearest = rp.baselines.get("nearest") or baseline(rp.inst, oracle, "nearest", settings, rp.book)
+        naive = first.baselines.get("naive") or baseline(first.inst, first_oracle, "naive", settings, first.book)
+        nearest = first.baselines.get("nearest") or baseline(first.inst, first_oracle, "nearest", settings, first.book)
     inst = rp.inst if rp.book is None else rp.book.apply(rp.inst)  # the baselines' detours too
     names = rig.booms[0].boom.joint_names
     kinds, not_clear = move_report(inst, rp, rig) if moves else (None, [])
@@ -126,10 +157,12 @@ def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
     failed = rp.book.kinds(final.routes)[1] if rp.book is not None else []
     traj = trajectory_table(inst, final, oracle, names, failed)
 
+    base = first.inst if first.book is None else first.book.apply(first.inst)
+
     def extra(tl):
         return None if tl is None else {"waits": len(tl.repairs), "conflicts_left": tl.conflicts_left,
-                                        "moving_s": sum(_times(inst, tl, b)["moving_s"] for b in range(len(rig))),
-                                        "waiting_s": sum(_times(inst, tl, b)["waiting_s"] for b in range(len(rig)))}
+                                        "moving_s": sum(_times(base, tl, b)["moving_s"] for b in range(len(rig))),
+                                        "waiting_s": sum(_times(base, tl, b)["waiting_s"] for b in range(len(rig)))}
 
     s = summary(inst, final, rp.lower_bound_s, naive, nearest, [m.base for m in rig.booms], rig.d_boom, kinds,
                 rig=rig.name, stopped=rp.stopped,
@@ -141,12 +174,60 @@ def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
                                    "boom": boom_floor(final, oracle.floor)},
                 margin_m={**({k: rp.book.margin[k] for k in ("self", "tunnel")} if rp.book is not None else
                              {"self": None, "tunnel": None}), "boom": 0.0},
-                reproducible=settings.reproducible)
+                reproducible=settings.reproducible, postures=rp.postures)
     s["moving_s"] = sum(v["moving_s"] for v in s["booms"].values())
     s["waiting_s"] = sum(v["waiting_s"] for v in s["booms"].values())
     timings = {"planning_s": rp.planning_s, "baselines_s": rp.baselines_s, "total_s": time.perf_counter() - started,
                "moves_s": rp.book.seconds if rp.book is not None else 0.0}
     return RoundResult(inst, oracle, rp, naive, nearest, table, traj, s, not_clear, timings, final, finished)
+
+
+def _plan_postures(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: RoundSettings, postures: Postures,
+                   rp: RoundPlan, oracle, joints, say) -> tuple[RoundPlan, object, list[torch.Tensor]]:
+    """The round planned again from the postures chosen along the best round's routes
+    (:mod:`pipeline.round.postures`), up to ``round.posture_rounds`` times while each is better; the
+    best plan, its oracle and joints. Each planning takes the previous book's answers for the moves whose
+    ends kept their joints; the bound is the least over every alternative; the spec's baselines stay
+    those of the reach table's postures (the first plan's)."""
+    limits = [m.joints for m in motions]
+    first, best = rp, (rp, oracle, joints)
+    changed, total_s, bound = 0, rp.planning_s, rp.lower_bound_s
+    for k in range(settings.posture_rounds):
+        cur, cur_oracle, cur_joints = best
+        chosen = choose_postures(cur.inst, cur.timeline, postures, cur_joints, rig, limits, settings.posture_conflict_s,
+                                 settings.posture_unclear_s, settings.blocked_screen_m)
+        moved = sum(int((~_same_rows(a, c)).sum()) for a, c in zip(cur_joints, chosen, strict=True))
+        if moved == 0:
+            say(f"postures, round {k + 1}: the routes' postures are already the chosen ones")
+            break
+        inst2, oracle2, joints2 = round_instance(rig, plan, reach, motions, settings, chosen)
+        book = make_book(inst2, oracle2, settings)
+        book.carry(cur.book, np.stack([_same_rows(a, c).numpy() for a, c in zip(cur_oracle.joints, oracle2.joints,
+                                                                                 strict=True)]))
+        say(f"postures, round {k + 1}: {moved} (boom, hole) solutions changed along the routes; planning again")
+        rp2 = plan_round(inst2, oracle2, settings, progress=say, baselines=False, book=book,
+                         candidates={"the previous round's routes": cur.timeline.routes})
+        total_s += rp2.planning_s
+        bound = min(bound, rp2.lower_bound_s)
+        if not better(rp2.timeline, cur.timeline):
+            say(f"postures, round {k + 1}: makespan {rp2.timeline.makespan:.1f} s, not better; kept "
+                f"{cur.timeline.makespan:.1f} s")
+            break
+        say(f"postures, round {k + 1}: makespan {rp2.timeline.makespan:.1f} s (was {cur.timeline.makespan:.1f} s)")
+        changed += moved
+        best = (rp2, oracle2, joints2)
+    rp = best[0]
+    rp.baselines, rp.baselines_s = first.baselines, first.baselines_s
+    rp.planning_s = total_s
+    rp.lower_bound_s = min(bound, posture_bound(first.inst, postures, limits, rig))
+    rp.postures = {"k": postures.k, "rounds": k + 1, "changed": changed, "chosen": rp is not first,
+                   "alternatives": {rig.names[b]: c for b, c in postures.counts().items()}}
+    return best
+
+
+def _same_rows(a: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+    """Rows of two joint tables that are exactly the same (NaN equal to NaN)."""
+    return ((a == c) | (a.isnan() & c.isnan())).all(dim=1)
 
 
 def _times(inst, tl, b):

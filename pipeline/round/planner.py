@@ -66,13 +66,14 @@ class RoundPlan:
     book: MoveBook | None = None  # what is known of every move (straight, detour, failed)
     stopped: str = ""  # why the re-optimisation stopped
     baselines_s: float = 0.0  # seconds of planning_s spent timing the spec's baselines
+    postures: dict | None = None  # the posture choice (pipeline.round.postures), where it ran
 
 
 SEEDS = ("sweep -y", "sweep +y")  # the planner's starts (pipeline.round.seeds)
 BASELINES = ("naive", "nearest")  # the spec's, timed after the planning with the same moves and conflicts
 
 
-def _better(a: Timeline, b: Timeline | None) -> bool:
+def better(a: Timeline, b: Timeline | None) -> bool:
     """Fewer conflicts left, then fewer failed moves, then the shorter makespan: a round with a move
     nothing made clear is published only where no candidate has all its moves clear."""
     return b is None or (a.conflicts_left, a.failed_moves, a.makespan) < (b.conflicts_left, b.failed_moves,
@@ -168,13 +169,13 @@ def _time_seeds(inst: Instance, timer: _Timer, clock: _Clock, settings: RoundSet
     for kind, routes in start.seeds.items():
         tl = clock.timed(timer, routes)
         say(f"seed {kind}: makespan {tl.makespan:.1f} s, {tl.conflicts_left} conflicts left")
-        if _better(tl, start.best):
+        if better(tl, start.best):
             start.best, start.seed = tl, kind
     t_base = time.perf_counter()
     for kind in BASELINES if baselines and seeded(inst) else ():  # reported, and candidates the routing can beat
         tl = start.baselines[kind] = timer(seed_routes(inst, kind))
         say(f"baseline {kind}: makespan {tl.makespan:.1f} s, {tl.conflicts_left} conflicts left")
-        if _better(tl, start.best):
+        if better(tl, start.best):
             start.best, start.seed = tl, kind
     start.baselines_s = time.perf_counter() - t_base
     return start
@@ -273,10 +274,10 @@ def plan_round(inst: Instance, oracle: ConflictOracle, settings: RoundSettings,
         t_timing = time.perf_counter()
         tl = timer(r.routes)  # steps 2 and 3
         say(f"round {it}: makespan {tl.makespan:.1f} s, {len(tl.repairs)} waits, {tl.conflicts_left} conflicts left")
-        if _better(tl, best):
+        if better(tl, best):
             best = tl
         alt = reversed_variant(timer, r.routes, inst)
-        if alt is not None and _better(alt, best):
+        if alt is not None and better(alt, best):
             say(f"round {it}, one boom reversed: makespan {alt.makespan:.1f} s, {alt.conflicts_left} conflicts left")
             best = alt
         clock.last_timing = time.perf_counter() - t_timing
@@ -324,7 +325,7 @@ def reversed_variant(timer: Callable[[list[list[int]]], Timeline], routes: list[
         if len(routes[b]) < 2:
             continue
         tl = timer(_reverse_one(routes, b))
-        if _better(tl, best):
+        if better(tl, best):
             best = tl
     return best
 

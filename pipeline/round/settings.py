@@ -52,6 +52,13 @@ class RoundSettings:
     sweep_band_m: float = field(default=1.0, metadata=rule(gt=0))
     sweep_more_bands_m: list[float] = field(default_factory=lambda: [0.75, 1.5, 2.0])  # more sweeps, other bands
     clear_ends: bool = True  # each sweep also timed with its ends clear of the other booms' parks
+    postures: int = field(default=8, metadata=rule(ge=1))  # ok solutions kept per hole and boom (1: the reach table's)
+    posture_starts: int = field(default=32, metadata=rule(ge=0))  # random starts per hole and boom that find them
+    posture_gap_s: float = field(default=2.0, metadata=rule(gt=0))  # two kept differ by at least this move time (s)
+    posture_conflict_s: float = field(default=60.0, metadata=rule(ge=0))  # the choice's price of a standing conflict
+    posture_unclear_s: float = field(default=30.0, metadata=rule(ge=0))  # ... of a straight move that needs a detour
+    posture_rounds: int = field(default=2, metadata=rule(ge=1))  # plannings on chosen postures, while each is better
+    posture_seed: int = field(default=0, metadata=rule(ge=0))
 
     @property
     def reproducible(self) -> bool:

@@ -302,6 +302,27 @@ class HybridSolver(Solver):
         best.put(todo, chosen)
         status[todo] = chosen_status
 
+    def postures(self, targets: Targets, obstacles: Sequence[BoomObstacle] = (), starts: int = 32,
+                 seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+        """Other postures of each hole: ``starts`` random starts per hole in the start box, each refined
+        on its own with the safety rows (``obstacles`` standing), as ``(H, starts, n_joints)`` joints and
+        ``(H, starts)`` whether each is ok (exact and clear). The chain is redundant (8 joints for a 5-D
+        hole), so starts in different branches (feed side, q4 / q7) end in different ok solutions; the
+        round chooses among them (:mod:`pipeline.round.postures`). Seeded: the same starts on any device."""
+        if not isinstance(targets, HoleTargets):
+            raise InputError(f"{self.name}: solves holes (HoleTargets), got {type(targets).__name__}")
+        with torch.inference_mode():
+            pose = self.consistent(targets.pose.double())
+            H, n = len(pose), self.space.n
+            g = torch.Generator().manual_seed(int(seed))
+            u = torch.rand(H, starts, n, generator=g, dtype=torch.float64)
+            x = self.space.full(self.project((self.start_lo + u * (self.start_hi - self.start_lo)).to(pose)))
+            others = self._obstacles(obstacles, H)
+            cand = self.refine(x.reshape(H * starts, -1), pose.repeat_interleave(starts, dim=0), use_safety=True,
+                               others=[(p, f.repeat_interleave(starts, dim=0)) for p, f in others])
+            status, _ = self.rank(cand)
+        return cand.q.reshape(H, starts, -1).clone(), (status == 0).reshape(H, starts).clone()
+
     # ------------------------------------------------------------------ the solve
     def consistent(self, pose: torch.Tensor) -> torch.Tensor:
         """The targets with each preview point at exactly the boom's preview depth from its collar,
