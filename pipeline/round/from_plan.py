@@ -18,7 +18,7 @@ same moves with the same conflict handling:
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -29,6 +29,7 @@ from pipeline.geometry.rig import Rig
 from pipeline.plans.model import COLLAR, DrillPlan
 from pipeline.plans.reach import Reach
 from pipeline.plans.solutions import INVALID
+from pipeline.round.oracle import KinematicOracle
 from pipeline.round.planner import RoundPlan, baseline, better, make_book, plan_round
 from pipeline.round.postures import Postures, choose_postures, posture_bound
 from pipeline.round.problem import precedence_indices
@@ -140,10 +141,14 @@ def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
     inst, oracle, joints = round_instance(rig, plan, reach, motions, settings)
     first_oracle = oracle  # the spec's baselines drill the reach table's postures
     started = time.perf_counter()
-    rp = plan_round(inst, oracle, settings, progress=say, baselines=baselines)
+    choosing = postures is not None and postures.k > 1 and inst.start is None and isinstance(oracle, KinematicOracle)
+    # with postures to choose, the first planning times the seeds alone: the routing runs on the chosen
+    # postures, whose rounds replace this one (docs/round.md, "Postures")
+    rp = plan_round(inst, oracle, replace(settings, routing=False) if choosing else settings,
+                    progress=say, baselines=baselines)
     say(f"planned in {rp.planning_s:.1f} s: makespan {rp.timeline.makespan:.1f} s")
     first = rp
-    if postures is not None and postures.k > 1 and inst.start is None and rp.book is not None:
+    if choosing and rp.book is not None:
         rp, oracle, joints = _plan_postures(rig, plan, reach, motions, settings, postures, rp, oracle, joints, say)
     naive = nearest = None
     if baselines:
@@ -217,6 +222,8 @@ def _plan_postures(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
         changed += moved
         best = (rp2, oracle2, joints2)
     rp = best[0]
+    if rp is first:
+        rp.stopped = f"the best seed on the reach table's postures: no planning on chosen postures was better ({k + 1})"
     rp.baselines, rp.baselines_s = first.baselines, first.baselines_s
     rp.planning_s = total_s
     rp.lower_bound_s = min(bound, posture_bound(first.inst, postures, limits, rig))
