@@ -27,7 +27,7 @@ from pipeline.motion.timing import motion_from_config
 D = torch.float64
 SPEC_DRILL = lambda L: 10.0 + L / 2.5 * 60.0 + L / 1.0  # noqa: E731  spec section 7, by hand
 FAST = ["rig=twin", "schedule.network=null", "round.solution_limit=50", "round.reopt_rounds=2",
-        "schedule.replay_frames=8", "runtime.progress=false"]
+        "round.posture_rounds=1", "schedule.replay_frames=8", "runtime.progress=false"]
 COLS = ["hole_id", "collar_x", "collar_y", "collar_z", "toe_x", "toe_y", "toe_z"]
 
 

@@ -69,13 +69,11 @@ def posture_alternatives(plan, rig, solvers: Sequence, reach: Reach, limits: Seq
         res = reach.results[mount.name]
         q0 = res.q.detach().to(D).cpu()
         ok0 = torch.tensor([s == "ok" for s in res.status])
+        q, ok = q0.new_zeros(len(q0), 0, q0.shape[1]), torch.zeros(len(q0), 0, dtype=torch.bool)
         if k > 1 and starts > 0:
             targets = HoleTargets(plan.poses(mount.boom.preview_depth), mount.boom.preview_depth)
             q, ok = solver.postures(targets, parked_others(rig, b), starts, seed + b)
-            q, ok = q.to(D).cpu(), ok.cpu()
-        else:
-            q, ok = q0[:, None, :0].new_zeros(len(q0), 0, q0.shape[1]), torch.zeros(len(q0), 0, dtype=torch.bool)
-        qs_b, ok_b = farthest(q0, ok0, q, ok, limits[b], k, gap_s)
+        qs_b, ok_b = farthest(q0, ok0, q.to(D).cpu(), ok.cpu(), limits[b], k, gap_s)
         qs.append(qs_b)
         oks.append(ok_b.numpy())
     return Postures(qs, np.stack(oks))
