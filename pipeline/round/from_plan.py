@@ -12,7 +12,11 @@ same moves with the same conflict handling:
    uses is checked for the boom's own self and tunnel clearances at 1 cm of point travel before it
    is timed, and one that is not clear is re-planned (retract, or OMPL) and its detour's duration,
    motion and rows used from then on; a move nothing made clear is reported (``moves.failed``,
-   ``moves_not_clear`` with the reasons), never hidden.
+   ``moves_not_clear`` with the reasons), never hidden;
+4. given the posture alternatives (:mod:`pipeline.round.postures`), the first planning times the seeds
+   alone, and the round is planned again on the postures chosen along the best round's routes (each
+   planning with its own oracle and book, the previous book's answers carried); the spec's baselines keep
+   the reach table's postures.
 """
 
 from __future__ import annotations

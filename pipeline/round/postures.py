@@ -19,9 +19,10 @@ holes of two booms conflict standing (waits). Here:
 3. :func:`posture_bound`: the spec's lower bound with each move the least over the alternatives, so it
    stays a bound whatever the planner chooses.
 
-The planner (:func:`pipeline.round.from_plan.schedule_round`) plans once on the reach table's postures,
-chooses along the best round's routes, plans again from those postures (the first round's routes a
-candidate) and keeps the better round (docs/round.md, "Postures").
+The planner (:func:`pipeline.round.from_plan.schedule_round`) times the seeds on the reach table's
+postures, chooses along the best round's routes, plans again from those postures (routing included, the
+previous round's routes a candidate), and repeats along the better round's routes while that is better,
+up to ``round.posture_rounds`` times (docs/round.md, "Postures").
 """
 
 from __future__ import annotations
@@ -32,6 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from pipeline.motion.checks import check_straight_moves
+from pipeline.motion.path import unwrapped
 from pipeline.motion.timing import JointLimits, move_time
 from pipeline.plans.reach import Reach, parked_others
 from pipeline.round.bounds import bound_from
@@ -99,7 +102,7 @@ def farthest(q0: torch.Tensor, ok0: torch.Tensor, q: torch.Tensor, ok: torch.Ten
         return out, keep
     near = move_time(q0[:, None, :], q, limits)  # (H, S): move time to the nearest kept solution
     rows = torch.arange(H)
-    for j in range(1, k):  # k is small (default 3): a loop over the kept count, every hole at once
+    for j in range(1, k):  # k is small (round.postures, 8): a loop over the kept count, every hole at once
         score = torch.where(ok & ok0[:, None] & (near >= gap_s), near, torch.full_like(near, -1.0))
         best, pick = score.max(dim=1)
         found = best >= 0
@@ -165,9 +168,6 @@ def _unclear(rig, b: int, start: torch.Tensor, cand: torch.Tensor, valid: torch.
     only moves between valid alternatives are screened, all in one batch."""
     if price_s == 0:
         return None
-    from pipeline.motion.checks import check_straight_moves
-    from pipeline.motion.path import unwrapped
-
     R, K, n = cand.shape
     pairs = valid[:-1, :, None] & valid[1:, None, :]  # (R-1, K, K)
     i, ka, kb = pairs.nonzero(as_tuple=True)
