@@ -71,3 +71,24 @@ def test_a_point_that_never_solves_is_tried_a_bounded_number_of_times_and_report
     assert stats["solved_share"] == float(exact.double().mean())
     assert sum(calls) <= int((~solved0).sum()) * 2  # each unsolved point refined at most max_tries times
     assert math.isclose(stats["seeded_share"], float(solved0.double().mean()))
+
+
+def test_a_longer_budget_labels_the_arch_holes_a_short_one_misses_on_one_branch(safety):
+    """On jumbo8, the descent towards a hole high in the arch meets the boom extension's limit and
+    needs more than the local search's 12 iterations to slide along the redundancy; with a longer
+    budget those holes get labels, exact by forward kinematics, without labels jumping branches."""
+    from pipeline.assembly.build import hole_sampling
+    from pipeline.core.config import compose
+    from pipeline.data.hole_sets import set_consistency
+    from pipeline.data.holes import sample_holes
+    from pipeline.solvers.labels import LOCAL_SEARCH, continuation
+
+    pose, _ = sample_holes(2000, safety, hole_sampling(compose([]).holes), 4)
+    label = continuation(safety)
+    _, short = label(pose, None)
+    q, long = label(pose, 200)
+    assert float(long.double().mean()) > float(short.double().mean()) + 0.05
+    assert float(pose[~short, 2].mean()) > float(pose[:, 2].mean()) + 1.0  # the misses lie high, in the arch
+    err = 0.5 * ((safety.boom.pose6(q[long]) - pose[long]).reshape(-1, 2, 3).norm(dim=-1)).sum(-1)
+    assert float(err.max()) <= LOCAL_SEARCH.tol_mm / 1000
+    assert set_consistency(safety.boom, pose[long], q[long])["branch_jump_share"] <= 0.02

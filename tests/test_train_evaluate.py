@@ -15,6 +15,7 @@ from pipeline.core.errors import ConfigError, InputError
 from pipeline.data.holes import HoleSampling, sample_holes, sample_joints
 from pipeline.evaluation.metrics import solution_table, summarize
 from pipeline.geometry.collision import SAFETY_KINDS
+from pipeline.learning.losses import joint_loss
 from pipeline.learning.models import build_model, load_checkpoint
 from pipeline.learning.training import MethodSettings, Objective, dataset_batches, loss_terms
 
@@ -175,6 +176,58 @@ def test_penalty_step_through_the_network_reduces_violations(safety):
     terms0["loss"].backward()
     opt.step()
     assert float(loss_terms(model, boom, safety, objective, pose.float())["loss"]) < float(terms0["loss"])
+
+
+def test_supervised_loss_is_eq6_alone_unless_mu_adds_the_penalties(safety):
+    """``mu = 0`` (paper 000's SIKM) optimises eq. 6 and nothing else; ``mu > 0`` adds the four
+    safety penalties beside it, and trained on labels that collide, the network then ends with
+    less violation than the same training without them."""
+    boom = safety.boom
+    q_sup = sample_joints(512, boom, seed=24)  # full ranges: about half of these labels collide
+    src = boom.pose6(q_sup).float()
+    fixed = next(dataset_batches(src, q_sup.float(), 512, 0))
+
+    def trained(mu):
+        torch.manual_seed(2)
+        model = build_model(boom, src.mean(0), src.std(0), 64, 2, "gelu")
+        objective = Objective(True, 1.0, mu, "norm")
+        opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+        for _ in range(80):
+            opt.zero_grad()
+            loss_terms(model, boom, safety, objective, *fixed)["loss"].backward()
+            opt.step()
+        with torch.no_grad():
+            return loss_terms(model, boom, safety, objective, *fixed)
+
+    plain, penalised = trained(0.0), trained(1.0)
+    assert float(plain["loss"]) == float(plain["l_joint"])
+    violation = {name: sum(float(t[f"l_{k}"]) for k in SAFETY_KINDS) for name, t in
+                 (("plain", plain), ("penalised", penalised))}
+    assert violation["plain"] > 0
+    assert violation["penalised"] < 0.5 * violation["plain"]
+    assert float(penalised["loss"]) == pytest.approx(float(penalised["l_joint"]) + violation["penalised"], rel=1e-5)
+
+
+def test_the_pose_metric_of_a_joint_error_is_the_hole_error_it_causes_to_first_order(safety):
+    """``label_pose_loss`` against forward kinematics: for small joint errors it equals the mean
+    hole-seeking error of the moved joints (relative gap of the order of the step); along the
+    boom's redundancy (the label's Jacobian's null space) it vanishes, which is why eq. 6 stays
+    beside it."""
+    from pipeline.geometry.kinematics import pose_errors
+    from pipeline.learning.losses import label_pose_loss
+
+    boom = safety.boom
+    q = sample_joints(64, boom, seed=25)
+    dq = 1e-5 * torch.randn(q.shape, generator=torch.Generator().manual_seed(0), dtype=q.dtype)
+    by_fk = float(pose_errors(boom.pose6(q + dq), boom.pose6(q))["hole"].mean())
+    assert float(label_pose_loss(boom, q + dq, q, "norm")) == pytest.approx(by_fk, rel=1e-3)
+    sq = float((((boom.pose6(q + dq) - boom.pose6(q)) ** 2).sum(-1)).mean())
+    assert float(label_pose_loss(boom, q + dq, q, "mse")) == pytest.approx(sq, rel=1e-3)
+    null = torch.linalg.svd(boom.pose6_jacobian(boom.frames(q))).Vh[:, -1]  # (64, n_joints), J null = 0
+    along = q + 1e-3 * null
+    assert float(label_pose_loss(boom, along, q, "mse")) < 1e-20
+    lo, hi = boom.limits(q.dtype)
+    assert float(joint_loss((along - lo) / (hi - lo), (q - lo) / (hi - lo))) > 1e-9
 
 
 def test_bad_method_config_is_named(tmp_path):

@@ -42,6 +42,9 @@ class SupervisedSet:
     neighbour, :mod:`pipeline.solvers.continuation`), ``continuation_clear`` (the same with
     solutions that keep every safety distance) or ``continuation_rescue`` (the poses the walk misses
     solved by the full hybrid from their nearest labelled neighbour, and walked on from);
+    ``label_iters``: the labelling solver's Levenberg-Marquardt iterations per refinement (null: the
+    local search's own budget, 12); a descent that meets a joint limit (the boom extension, high in
+    the arch) needs more to slide along the redundancy, and a pose left unsolved is left out;
     ``window``: keep only face-like samples (mismatch study); ``couplings``: draw the joints on these linear couplings
     (:mod:`pipeline.data.couplings`, e.g. paper 000's pair, which leaves 6 free joints), not over
     the whole box."""
@@ -52,6 +55,7 @@ class SupervisedSet:
     window: bool = False
     couplings: list | None = None
     poses: str = field(default="box", metadata=rule(choices=("box", "holes")))
+    label_iters: int | None = field(default=None, metadata=rule(ge=1))
 
     def __post_init__(self):
         if self.poses == "holes" and (self.labels == "sampled" or self.window or self.couplings is not None):
@@ -60,7 +64,8 @@ class SupervisedSet:
                               "neither window nor couplings")
 
 
-Labeller = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]  # poses (n, 6) -> joints, exact (n,)
+# poses (n, 6), iteration budget (None: the solver's own) -> joints, exact (n,)
+Labeller = Callable[[torch.Tensor, int | None], tuple[torch.Tensor, torch.Tensor]]
 
 
 def supervised_table(safety: SafetyModel, spec: SupervisedSet, box: Mapping | None,
@@ -77,13 +82,13 @@ def supervised_table(safety: SafetyModel, spec: SupervisedSet, box: Mapping | No
         if sampling is None:
             raise ConfigError("Omega_sup with poses = 'holes' needs the hole sampling")
         target, _ = sample_holes(spec.size, safety, sampling, spec.seed)
-        q, exact = labellers[spec.labels](target)
+        q, exact = labellers[spec.labels](target, spec.label_iters)
         q, relabelled = q[exact], float(exact.double().mean())  # a hole the solver misses has no label: left out
     else:
         draw = joint_sampler(boom, box, spec.couplings)
         q = sample_joints_in_window(spec.size, safety, spec.seed, draw) if spec.window else draw(spec.size, spec.seed)
         if spec.labels != "sampled":  # same poses, other (branch-consistent) joints where the solver is exact
-            found, exact = labellers[spec.labels](boom.pose6(q))
+            found, exact = labellers[spec.labels](boom.pose6(q), spec.label_iters)
             q, relabelled = torch.where(exact[:, None], found, q), float(exact.double().mean())
     frames = boom.frames(q)
     pose = boom.pose6_from_frames(frames)
@@ -92,6 +97,7 @@ def supervised_table(safety: SafetyModel, spec: SupervisedSet, box: Mapping | No
     any_violation = torch.stack([violated[k] for k in SAFETY_KINDS]).any(dim=0)
     stats = {
         "size": len(q), "seed": spec.seed, "poses": spec.poses, "labels": spec.labels, "window": spec.window,
+        "label_iters": spec.label_iters,
         "face_window_share": float(in_face_window(pose, safety.tunnel).double().mean()),
         "relabelled_share": relabelled,  # poses = holes: the share of holes labelled (the others left out)
         "couplings": None if spec.couplings is None else [dict(row) for row in spec.couplings],

@@ -40,7 +40,9 @@ from pipeline.data.holes import HoleSampling, sample_holes
 from pipeline.data.tables import POSE_COLUMNS
 from pipeline.geometry.collision import SafetyDistances, SafetyModel
 from pipeline.geometry.kinematics import Boom, pose_errors
-from pipeline.learning.losses import POSE_LOSSES, joint_loss, pose_loss, safety_terms, total_loss
+from pipeline.learning.losses import (
+    JOINT_METRICS, POSE_LOSSES, joint_loss, label_pose_loss, pose_loss, safety_terms, supervised_loss, total_loss,
+)
 from pipeline.learning.models import IKNet
 
 log = logging.getLogger(__name__)
@@ -71,12 +73,15 @@ class TrainSettings:
 
 @dataclass(frozen=True)
 class Objective:
-    """What a method minimises: eq. 6 when supervised, else eq. 16 (eq. 7 when ``mu == 0``)."""
+    """What a method minimises: eq. 6 when supervised (plus ``mu`` times the four safety penalties
+    of eq. 16 when ``mu > 0``: labels say where the joints go, the penalties need none), else
+    eq. 16 (eq. 7 when ``mu == 0``)."""
 
     supervised: bool
     lam: float = 1.0
     mu: float = 0.0
     pose_loss: str = "mse"
+    joint_metric: str = "range"  # supervised: how a joint error is measured (JOINT_METRICS)
 
 
 @dataclass(frozen=True)
@@ -90,6 +95,9 @@ class MethodSettings:
     pose_loss: str = field(metadata=rule(choices=POSE_LOSSES))
     train_safety: dict = field(default_factory=dict)
     sup_set: str = "sup"  # supervised methods: which Omega_sup table of the hole set (sup, or a holes.sup_variants key)
+    # supervised methods: range (eq. 6, each joint over its range) or pose (eq. 6 plus the joint error
+    # measured by what it does to the hole pose at the label, to first order; see supervised_loss)
+    joint_metric: str = field(default="range", metadata=rule(choices=JOINT_METRICS))
 
     @classmethod
     def from_config(cls, node: Mapping, where: str = "method") -> MethodSettings:
@@ -99,7 +107,7 @@ class MethodSettings:
 
     @property
     def objective(self) -> Objective:
-        return Objective(self.supervised, self.lam, self.mu, self.pose_loss)
+        return Objective(self.supervised, self.lam, self.mu, self.pose_loss, self.joint_metric)
 
 
 def loss_terms(
@@ -115,13 +123,15 @@ def loss_terms(
     q = model.lower + model.span * unit
     frames = boom.frames(q)
     terms = {"l_pos": pose_loss(boom.pose6_from_frames(frames), pose, objective.pose_loss)}
-    with torch.set_grad_enabled(torch.is_grad_enabled() and objective.mu > 0 and not objective.supervised):
+    with torch.set_grad_enabled(torch.is_grad_enabled() and objective.mu > 0):
         terms.update(safety_terms(safety.penalties(safety.clearances_from_frames(frames))))
     if objective.supervised:
         if q_target is None:
             raise ValueError("a supervised objective needs joint targets")
         terms["l_joint"] = joint_loss(unit, (q_target - model.lower) / model.span)
-        terms["loss"] = terms["l_joint"]
+        if objective.joint_metric == "pose":
+            terms["l_joint_pose"] = label_pose_loss(boom, q, q_target.to(q), objective.pose_loss)
+        terms["loss"] = supervised_loss(terms, objective.mu)
     else:
         terms["loss"] = total_loss(terms, objective.lam, objective.mu)
     return terms

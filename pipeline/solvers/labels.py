@@ -21,10 +21,12 @@ from pipeline.solvers.hybrid import HybridSettings, HybridSolver
 
 LOCAL_SEARCH = HybridSettings(prefer="start", random_starts=0, perturbed_starts=8)
 
-Labeller = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]  # poses (n, 6) -> joints, found (n,)
+Search = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]  # poses (n, 6) -> joints, ok (n,)
+# poses (n, 6), LM iterations per refinement (None: the settings' max_iters) -> joints, found (n,)
+Labeller = Callable[[torch.Tensor, int | None], tuple[torch.Tensor, torch.Tensor]]
 
 
-def local_search(safety: SafetyModel, settings: HybridSettings = LOCAL_SEARCH) -> Labeller:
+def local_search(safety: SafetyModel, settings: HybridSettings = LOCAL_SEARCH) -> Search:
     """Poses -> the joints a local search finds and whether they are exact and clear (status ``ok``)."""
     solver = HybridSolver(safety.boom, safety, None, settings)
 
@@ -40,9 +42,9 @@ def home_branch(safety: SafetyModel, settings: HybridSettings = LOCAL_SEARCH) ->
     whether it reaches the pose within ``settings.tol_mm``."""
     solver = HybridSolver(safety.boom, safety, None, settings)
 
-    def solve(pose: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def solve(pose: torch.Tensor, max_iters: int | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         home = solver.space.full((0.5 * (solver.space.lower + solver.space.upper)).expand(len(pose), -1))
-        found = solver.refine(home, pose, use_safety=False)
+        found = solver.refine(home, pose, use_safety=False, max_iters=max_iters)
         return found.q, found.hole_error <= settings.tol_mm / 1000
 
     return solve
@@ -68,12 +70,12 @@ def continuation(safety: SafetyModel, settings: HybridSettings = LOCAL_SEARCH, n
     full = HybridSolver(safety.boom, safety, None, HybridSettings(prefer="start"))
     home = solver.space.full((0.5 * (solver.space.lower + solver.space.upper))[None])[0]
 
-    def refine(start: torch.Tensor, pose: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        found = solver.refine(start, pose, use_safety=clear)
-        exact = found.hole_error <= settings.tol_mm / 1000
-        return found.q, exact & (found.clearances >= 0).all(dim=-1) if clear else exact
+    def solve(pose: torch.Tensor, max_iters: int | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        def refine(start: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            found = solver.refine(start, target, use_safety=clear, max_iters=max_iters)
+            exact = found.hole_error <= settings.tol_mm / 1000
+            return found.q, exact & (found.clearances >= 0).all(dim=-1) if clear else exact
 
-    def solve(pose: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         q0 = home.to(pose).expand(len(pose), -1).clone()
         seeds = torch.arange(len(pose)) if seed_from_home else \
             (pose - pose.median(dim=0).values).norm(dim=-1).argsort()[:16]
