@@ -77,6 +77,7 @@ def run(cfg: DictConfig) -> dict:
     device = resolve_device(cfg.device)
     safety, sampling = build_safety(cfg.boom, cfg.tunnel, cfg.safety), hole_sampling(cfg.holes)
     train_safety = safety.with_distances(SafetyDistances.from_config(method.train_safety))
+    steps = method.steps(settings.steps)
     # A sweep job keeps its model in its own job folder; a single run writes paths.data/models.
     job_dir = sweep.job_output_dir()
     models_dir = require_writable(job_dir or project_path(cfg.paths.data) / "models", "paths.data")
@@ -95,14 +96,14 @@ def run(cfg: DictConfig) -> dict:
     with stage_run(tracking, f"train-{method.name}", tags, system_metrics=True,
                    resume_run_id=resume and resume.get("mlflow_run_id")) as mlrun:
         sweep.record_job_run(mlrun.run_id)
-        mlrun.log_params(run_cfg)
+        mlrun.log_params({**run_cfg, "steps_trained": steps})  # train.steps, or the method's max_steps below it
         inputs = {context: mlrun.log_dataset(df, path, context) for context, (path, df) in data.files.items()}
         inputs["validation"] = mlrun.log_frame_dataset(
             pd.DataFrame(data.val_pose.numpy(), columns=POSE_COLUMNS), f"held-out holes (val_seed={settings.val_seed})",
             "validation")
         if resume is not None:
             mlrun.set_tags({"resumed_at_step": str(resume["step"])})
-            log.info("train %s: resuming at step %d of %d from %s", method.name, resume["step"], settings.steps,
+            log.info("train %s: resuming at step %d of %d from %s", method.name, resume["step"], steps,
                      run_dir / RESUME_FILE)
 
         def save_state(state: dict) -> None:
@@ -112,10 +113,10 @@ def run(cfg: DictConfig) -> dict:
         t0 = time.perf_counter()
         history = fit(model, safety.boom, train_safety, method.objective,
                       training_batches(data, method.objective, settings, safety, sampling, device),
-                      settings.steps, settings.lr, data.val_pose.float().to(device), settings.eval_every,
+                      steps, settings.lr, data.val_pose.float().to(device), settings.eval_every,
                       settings.grad_clip, progress=runtime.progress, keep_best=settings.keep_best,
                       on_eval=lambda step, rec, elapsed: log_training_progress(
-                          mlrun, step, settings.steps, rec, elapsed, method.name, echo=not runtime.progress),
+                          mlrun, step, steps, rec, elapsed, method.name, echo=not runtime.progress),
                       checkpoints=Checkpoints(save_state, runtime.checkpoint_every, resume))
         model = model.cpu()
         train_s = time.perf_counter() - t0 + (resume["elapsed_s"] if resume else 0.0)

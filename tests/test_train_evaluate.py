@@ -230,6 +230,16 @@ def test_the_pose_metric_of_a_joint_error_is_the_hole_error_it_causes_to_first_o
     assert float(joint_loss((along - lo) / (hi - lo), (q - lo) / (hi - lo))) > 1e-9
 
 
+def test_a_method_trains_at_most_its_own_step_budget():
+    node = compose(["method=sikm"]).method
+    assert node.max_steps is not None
+    sikm = MethodSettings.from_config(node)
+    assert sikm.steps(15000) == node.max_steps and sikm.steps(300) == 300  # a cap, never more than train.steps
+    assert MethodSettings.from_config(compose(["method=cuikm"]).method).steps(15000) == 15000
+    with pytest.raises(ConfigError, match=r"method.max_steps"):
+        MethodSettings.from_config(compose(["method=sikm", "method.max_steps=0"]).method)
+
+
 def test_bad_method_config_is_named(tmp_path):
     with pytest.raises(ConfigError, match=r"method.mu = -1.0: must be >= 0"):
         MethodSettings.from_config(compose(["method.mu=-1"]).method)

@@ -98,12 +98,19 @@ class MethodSettings:
     # supervised methods: range (eq. 6, each joint over its range) or pose (eq. 6 plus the joint error
     # measured by what it does to the hole pose at the label, to first order; see supervised_loss)
     joint_metric: str = field(default="range", metadata=rule(choices=JOINT_METRICS))
+    # at most this many training steps for this method (null: train.steps): a method whose best held-out
+    # weights come early (SIKM on sampled labels overfits) need not pay the others' budget
+    max_steps: int | None = field(default=None, metadata=rule(ge=1))
 
     @classmethod
     def from_config(cls, node: Mapping, where: str = "method") -> MethodSettings:
         settings = parse(cls, node, where)
         SafetyDistances.from_config(dict(settings.train_safety))  # checked now, not after loading data
         return settings
+
+    def steps(self, budget: int) -> int:
+        """This method's training steps under the study's ``train.steps`` budget."""
+        return budget if self.max_steps is None else min(budget, self.max_steps)
 
     @property
     def objective(self) -> Objective:
