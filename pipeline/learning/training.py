@@ -41,7 +41,14 @@ from pipeline.data.tables import POSE_COLUMNS
 from pipeline.geometry.collision import SafetyDistances, SafetyModel
 from pipeline.geometry.kinematics import Boom, pose_errors
 from pipeline.learning.losses import (
-    JOINT_METRICS, POSE_LOSSES, joint_loss, label_pose_loss, pose_loss, safety_terms, supervised_loss, total_loss,
+    JOINT_METRICS,
+    POSE_LOSSES,
+    joint_loss,
+    label_pose_loss,
+    pose_loss,
+    safety_terms,
+    supervised_loss,
+    total_loss,
 )
 from pipeline.learning.models import IKNet
 
