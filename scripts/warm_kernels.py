@@ -4,8 +4,8 @@
 
 numba compiles a kernel the first time a process calls it on a machine (about a minute for all of
 them on two cores) and loads it from the cache afterwards (under a second). The README's first
-command pays this inside ``dvc repro``; CI (``.ci/run``) runs this script after the install, so the
-test command's two workers load the kernels instead of each compiling them. Nothing is written but
+command runs this script before ``dvc repro``, and CI (``.ci/run``) after the install, so the stages
+and the test command's two workers load the kernels instead of each compiling them. Nothing is written but
 numba's cache (``__pycache__`` beside the kernels' modules, or ``NUMBA_CACHE_DIR``).
 """
 
