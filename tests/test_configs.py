@@ -17,6 +17,7 @@ from pipeline.derive_box import DeriveBoxSettings
 from pipeline.evaluate import EvalSettings
 from pipeline.evaluation.benchmarking import BenchmarkSettings
 from pipeline.generate import SetSize, TestGroups, supervised_sets
+from pipeline.learning.distillation import DistillSettings
 from pipeline.learning.models import ModelSettings
 from pipeline.learning.training import MethodSettings, TrainSettings
 from pipeline.solve import SolveSettings
@@ -37,6 +38,7 @@ NODES = {
     ExportSettings: "export",          # export, export_benchmark
     CalibrationSettings: "calibration",  # calibrate
     DeriveBoxSettings: "derive_box",   # derive_box
+    DistillSettings: "distill",        # distill
     RuntimeSettings: "runtime",        # every stage's main
     SupervisedSet: "holes.sup",        # generate (less its box)
 }

@@ -19,7 +19,13 @@ DATA = "${paths.data}/"
 
 
 def stages() -> dict[str, dict]:
-    spec = yaml.safe_load((g.ROOT / "dvc.yaml").read_text())["stages"]
+    """dvc.yaml's stages, ``foreach`` expanded and the file names that come from a params value
+    (``${distill.teacher}``: a setting, not a path) resolved from params.yaml as DVC resolves them."""
+    text = (g.ROOT / "dvc.yaml").read_text()
+    params = yaml.safe_load((g.ROOT / "params.yaml").read_text())
+    for key in ("teacher", "name"):
+        text = text.replace(f"${{distill.{key}}}", params["distill"][key])
+    spec = yaml.safe_load(text)["stages"]
     out = {}
     for name, stage in spec.items():
         body = stage.get("do", stage)
