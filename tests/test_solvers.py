@@ -334,3 +334,29 @@ def test_rbf_matches_scipys_gaussian_interpolator():
     Xq = torch.rand(50, 6, generator=g, dtype=torch.float64)
     expected = ours.y_map.inverse(torch.from_numpy(ref(ours.x_map.forward(Xq).numpy())))
     assert torch.allclose(ours(Xq), expected, atol=1e-8)
+
+
+def test_single_latencies_hold_the_collector_off_and_give_it_back(jumbo8):
+    """One hole's time is the solver's: no garbage collection of the whole process inside the loop, and the
+    collector left as it was found."""
+    import gc
+
+    from pipeline.evaluation.peer_timing import single_latencies
+
+    class Recording(Solver):
+        seen: list = []
+
+        def _solve(self, targets):
+            self.seen.append(gc.isenabled())
+            return torch.zeros(len(targets), jumbo8.n_joints, dtype=torch.float64), torch.ones(len(targets))
+
+    targets = HoleTargets(torch.zeros(5, 6, dtype=torch.float64), 0.5)
+    for before in (True, False):
+        (gc.enable if before else gc.disable)()
+        try:
+            latencies, q = single_latencies(Recording(jumbo8), targets, 3)
+            assert gc.isenabled() is before
+        finally:
+            gc.enable()
+        assert len(latencies) == 3 and q.shape == (3, jumbo8.n_joints)
+    assert Recording.seen == [False] * 6

@@ -9,6 +9,7 @@ compare solvers within one run.
 
 from __future__ import annotations
 
+import gc
 import statistics
 import time
 from contextlib import contextmanager
@@ -55,14 +56,26 @@ def shares(solved: torch.Tensor, violates: torch.Tensor) -> dict[str, float]:
 
 
 def single_latencies(solver: Solver, targets: HoleTargets, n: int) -> tuple[list[float], torch.Tensor]:
-    """Wall seconds of ``n`` one-hole solves (the first ``n`` holes, each alone) and their joints."""
+    """Wall seconds of ``n`` one-hole solves (the first ``n`` holes, each alone) and their joints.
+
+    Python's garbage collector is run before and held off during the loop, as ``timeit`` does: a full
+    collection walks the whole process's heap (torch, pandas, MLflow, the other solvers), so the pause
+    it adds to one hole's time measures the process, not the solver (a controller freezes or schedules
+    its collections)."""
     out, qs = [], []
-    for i in range(min(n, len(targets))):
-        one = targets.subset([i])
-        start = time.perf_counter()
-        res = solver.solve(one)
-        out.append(time.perf_counter() - start)
-        qs.append(res.q)
+    gc.collect()
+    was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        for i in range(min(n, len(targets))):
+            one = targets.subset([i])
+            start = time.perf_counter()
+            res = solver.solve(one)
+            out.append(time.perf_counter() - start)
+            qs.append(res.q)
+    finally:
+        if was_enabled:
+            gc.enable()
     return out, torch.cat(qs)
 
 
