@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import shutil
 import tempfile
 import time
 from dataclasses import asdict
@@ -61,16 +62,18 @@ def run(cfg: DictConfig) -> dict:
             mlrun.log_metrics({"loss": rec["loss"], "lr": rec["lr"]}, step=rec["step"])
         mlrun.log_metrics({k: v for k, v in final.items() if k not in ("method", "teacher")})
         tmp = Path(tempfile.mkdtemp(prefix=f".{s.name}.distill-", dir=models))
-        files = {tmp / f"{s.name}.pt": models / f"{s.name}.pt",
-                 tmp / f"{s.name}_final.json": models / f"{s.name}_final.json"}
-        ckpt, summary = files
-        save_checkpoint(ckpt, student, as_dict(cfg.boom), {"method": s.name, "history": history, "final": final,
-                                                           "config": params, "mlflow_run_id": mlrun.run_id})
-        write_json(final, summary)
-        mlrun.log_artifact(ckpt)
-        mlrun.log_artifact(summary)
-        publish(files, _lock(models, s.name))
-        tmp.rmdir()
+        try:  # written and logged in a private folder, then published together; the folder never stays
+            files = {tmp / f"{s.name}.pt": models / f"{s.name}.pt",
+                     tmp / f"{s.name}_final.json": models / f"{s.name}_final.json"}
+            ckpt, summary = files
+            save_checkpoint(ckpt, student, as_dict(cfg.boom), {"method": s.name, "history": history, "final": final,
+                                                               "config": params, "mlflow_run_id": mlrun.run_id})
+            write_json(final, summary)
+            mlrun.log_artifact(ckpt)
+            mlrun.log_artifact(summary)
+            publish(files, _lock(models, s.name))
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
     log.info("distilled %s (%d x %d %s) from %s in %.0f s: joints within %.4f of their ranges (p95), its own "
              "hole error %.1f mm (the teacher's %.2f mm) -> %s", s.name, s.depth, s.width, s.activation, s.teacher,
              final["train_seconds"], final["joint_dev_p95"], final["student_hole_mm_mean"],

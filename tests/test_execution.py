@@ -133,14 +133,16 @@ def test_sweep_conflicts_agree_with_a_dense_brute_force(round_, twin):
 
     seen, checked = set(), 0
     samples = {k: dense(k) for k in range(len(acts))}
+    pair = twin.pair(0, 1)
     for i in np.flatnonzero(acts.boom == 0):
         for j in np.flatnonzero(acts.boom == 1):
             qa, qb = samples[i], samples[j]
             if len(qa) * len(qb) > 100_000:
                 continue
             step = max(1, 50_000 // len(qb))  # configuration pairs per call: memory stays small
-            with torch.inference_mode():
-                m = min(float(twin.boom_clearance(0, qa[s:s + step, None], 1, qb[None]).min())
+            with torch.inference_mode():  # torch's BoomPair, not the compiled kernel the sweeps use
+                m = min(float(pair.clearance(twin.booms[0].frames(qa[s:s + step, None]),
+                                             twin.booms[1].frames(qb[None])).min())
                         for s in range(0, len(qa), step))
             k = listed.get((int(i), int(j)))
             flagged = k is not None and bool(conf.conflict[k])
