@@ -46,6 +46,7 @@ def run(cfg: DictConfig) -> dict:
     if meta.get("boom") is not None and meta["boom"] != as_dict(cfg.boom):
         raise InputError(f"{teacher_path}: trained for another boom than the configured one ({cfg.boom.name}); "
                          f"retrain it or configure its boom")
+    _refuse_to_replace_another_network(models / f"{s.name}.pt")
     # holes drawn like Omega_unsup, the pool and the held-out ones from two seeds of their own
     pool, _ = sample_holes(s.pool, safety, sampling, s.seed)
     val, _ = sample_holes(s.val_size, safety, sampling, s.seed + 1)
@@ -79,6 +80,16 @@ def run(cfg: DictConfig) -> dict:
              final["train_seconds"], final["joint_dev_p95"], final["student_hole_mm_mean"],
              final["teacher_hole_mm_mean"], models / f"{s.name}.pt")
     return final
+
+
+def _refuse_to_replace_another_network(path: Path) -> None:
+    """A student replaces an earlier student, never a trained network (``distill.name=uikm`` would)."""
+    if not path.exists():
+        return
+    _, meta = load_checkpoint(path)
+    if "distill" not in (meta.get("config") or {}):
+        raise InputError(f"{path}: holds a network that was not distilled (method {meta.get('method')!r}); "
+                         f"the student would replace it: choose another distill.name")
 
 
 def _lock(models: Path, name: str) -> Path:

@@ -78,6 +78,21 @@ def test_bad_settings_are_named_before_any_work(override, match, make_cfg, tmp_p
     assert not (tmp_path / "data").exists()
 
 
+def test_a_trained_network_is_never_replaced_by_a_student(tiny_study, make_cfg):
+    """distill.name naming a trained network's file is refused, the file left as it was; an earlier
+    student is replaced."""
+    models = tiny_study / "data" / "models"
+    before = (models / "cuikm.pt").read_bytes()
+    (models / "uikm.pt").write_bytes(before)  # a trained network under another name
+    with pytest.raises(InputError, match=r"uikm\.pt: holds a network that was not distilled \(method 'cuikm'\)"):
+        distill.run(make_cfg(tiny_study, "distill.name=uikm"))
+    assert (models / "uikm.pt").read_bytes() == before
+    distill.run(make_cfg(tiny_study, "distill.steps=5"))
+    first = (models / "cuikm_start.pt").read_bytes()
+    distill.run(make_cfg(tiny_study, "distill.steps=6"))
+    assert (models / "cuikm_start.pt").read_bytes() != first
+
+
 def test_a_missing_teacher_is_named(make_cfg, tmp_path):
     with pytest.raises(InputError, match=r"cuikm\.pt: no such model checkpoint"):
         distill.run(make_cfg(tmp_path))

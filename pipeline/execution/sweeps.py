@@ -146,8 +146,8 @@ def _box_gap(lo_a, hi_a, lo_b, hi_b) -> torch.Tensor:
 def _clearance(sa: Sweep, xa: torch.Tensor, sb: Sweep, xb: torch.Tensor, d_boom: float) -> torch.Tensor:
     """Boom-boom clearance (m, less d_boom) of sample pairs: every capsule of a against every capsule
     of b, the clamped segment distance of their axes less both radii (as :class:`BoomPair`), by the
-    compiled rig kernel (one pass over the pairs; torch's broadcast of every capsule pair made the
-    round's interlocks about half of the schedule stage's time)."""
+    compiled rig kernel (one pass over the pairs; torch's broadcast of every capsule pair was about a
+    third of the tiny study's schedule stage)."""
     flat = lambda e: e.reshape(len(e), -1, 3).numpy()  # noqa: E731  (S, 2 bodies, 3): body i's ends at 2i, 2i+1
     c = indexed_clearances(flat(sa.ends), flat(sb.ends), xa.numpy(), xb.numpy(), sa.radius.numpy(),
                            sb.radius.numpy(), float(d_boom))
