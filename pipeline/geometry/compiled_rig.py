@@ -169,12 +169,10 @@ def pair_clearance(a: CompiledBoom, qa: torch.Tensor, b: CompiledBoom, qb: torch
     their batch shapes broadcast: each distinct configuration's chain once, then every pairing."""
     Qa, Qb = _joints(qa, a.n, "boom a"), _joints(qb, b.n, "boom b")
     Ea, Eb = a.ends(Qa), b.ends(Qb)
-    if qa.shape[:-1] == qb.shape[:-1]:  # pairs in step (the oracle's every call): nothing to broadcast
-        shape, index = qa.shape[:-1], [np.arange(len(Qa))] * 2
-    else:
-        shape = torch.broadcast_shapes(qa.shape[:-1], qb.shape[:-1])
-        index = [torch.arange(int(np.prod(q.shape[:-1], dtype=np.int64))).reshape(q.shape[:-1]).expand(shape)
-                 .reshape(-1).numpy() for q in (qa, qb)]
+    # numpy's broadcasting: a few microseconds, where torch's broadcast_shapes and index tensors cost the
+    # oracle's thousands of small calls about half of their time
+    shape = np.broadcast_shapes(tuple(qa.shape[:-1]), tuple(qb.shape[:-1]))
+    index = [np.broadcast_to(np.arange(len(Q)).reshape(q.shape[:-1]), shape).ravel() for Q, q in ((Qa, qa), (Qb, qb))]
     c = indexed_clearances(Ea, Eb, index[0], index[1], a.radius, b.radius, float(d_boom))
     c[~(np.isfinite(Qa).all(1)[index[0]] & np.isfinite(Qb).all(1)[index[1]])] = -np.inf  # never clear
     return torch.from_numpy(c).reshape(shape)
