@@ -30,7 +30,8 @@ from pipeline.core.io import publish, require_writable, write_json
 from pipeline.core.stage import run_stage
 from pipeline.data.holes import sample_holes
 from pipeline.learning.distillation import DistillSettings, distil, imitation_metrics
-from pipeline.learning.models import check_network_fits, load_checkpoint, save_checkpoint
+from pipeline.learning.models import load_checkpoint, save_checkpoint
+from pipeline.learning.network_source import load_network
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
@@ -41,8 +42,7 @@ def run(cfg: DictConfig) -> dict:
     safety, sampling = build_safety(cfg.boom, cfg.tunnel, cfg.safety), hole_sampling(cfg.holes)
     models = require_writable(project_path(cfg.paths.data) / "models", "paths.data")
     teacher_path = models / f"{s.teacher}.pt"
-    teacher, meta = load_checkpoint(teacher_path)
-    check_network_fits(teacher, safety.boom, str(teacher_path))
+    teacher, meta = load_network(teacher_path, safety.boom)
     if meta.get("boom") is not None and meta["boom"] != as_dict(cfg.boom):
         raise InputError(f"{teacher_path}: trained for another boom than the configured one ({cfg.boom.name}); "
                          f"retrain it or configure its boom")
