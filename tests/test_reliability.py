@@ -403,7 +403,11 @@ def test_two_solves_into_one_out_never_leave_a_mixed_set(tmp_path):
 
 def test_a_store_locked_by_another_process_gets_a_named_wait_then_a_clear_error(tmp_path):
     """A second run waiting on another process's SQLite write lock (a paused solve) waits
-    tracking.busy_timeout_s, then fails naming tracking.uri (before: a raw OperationalError after ~25 s)."""
+    tracking.busy_timeout_s, then fails naming tracking.uri (before: a raw OperationalError after ~25 s).
+    The wait is the setting's, not MLflow's fixed 20 s: the project's own wait for the write lock fails it
+    (the message says so), and a lock released during a longer wait lets the run start."""
+    import threading
+
     from pipeline.tracking.runs import StoreBusy
 
     node = {"enabled": True, "uri": f"sqlite:///{tmp_path}/mlflow.db", "experiment": "boom-ik",
@@ -411,18 +415,26 @@ def test_a_store_locked_by_another_process_gets_a_named_wait_then_a_clear_error(
     settings = TrackingSettings.from_config(node)
     with stage_run(settings, "first", {"stage": "test"}):  # the store exists
         pass
-    holder = sqlite3.connect(tmp_path / "mlflow.db", timeout=0, isolation_level=None)
+    holder = sqlite3.connect(tmp_path / "mlflow.db", timeout=0, isolation_level=None, check_same_thread=False)
     holder.execute("BEGIN IMMEDIATE")  # the write lock, held as a paused writer holds it
     start = time.monotonic()
     try:
         with pytest.raises(StoreBusy, match=rf"tracking.uri = sqlite:///{tmp_path}/mlflow.db: the MLflow store "
-                                            r"stayed locked by another process .*tracking.busy_timeout_s = 1\)"):
+                                            r"stayed locked by another process .* while waiting for its write "
+                                            r"lock \(tracking.busy_timeout_s = 1\)"):
             with stage_run(settings, "second", {"stage": "test"}):
                 pass
     finally:
         holder.execute("ROLLBACK")
-        holder.close()
     assert time.monotonic() - start < 90
+    holder.execute("BEGIN IMMEDIATE")
+    threading.Timer(1.0, holder.execute, ["ROLLBACK"]).start()  # the other writer finishes during the wait
+    with stage_run(TrackingSettings.from_config({**node, "busy_timeout_s": 60}), "third", {"stage": "test"}):
+        pass
+    holder.close()
+    runs = MlflowClient(settings.uri).search_runs(
+        [MlflowClient(settings.uri).get_experiment_by_name("boom-ik").experiment_id])
+    assert sorted(r.info.run_name for r in runs) == ["first", "third"]
     with pytest.raises(ConfigError, match=r"tracking.busy_timeout_s = -1: expected a number of seconds >= 0"):
         TrackingSettings.from_config({**node, "busy_timeout_s": -1})
 

@@ -152,16 +152,59 @@ def waiting_on_busy_store(call, what: str, *args, **kwargs):
                 raise
             waited = time.monotonic() - start
             if waited >= _BUSY["timeout_s"]:
-                raise StoreBusy(
-                    f"tracking.uri = {_BUSY['uri']}: the MLflow store stayed locked by another process for "
-                    f"{waited:.0f} s while {what} (tracking.busy_timeout_s = {_BUSY['timeout_s']:g}); wait for "
-                    "the other run to finish or resume it, raise tracking.busy_timeout_s, or log to another "
-                    "store (tracking.uri=...)") from None
+                raise _busy(waited, what) from None
             if not warned:
-                log.warning("MLflow store %s is locked by another process; waiting up to %g s "
-                            "(tracking.busy_timeout_s)", _BUSY["uri"], _BUSY["timeout_s"])
+                _warn_busy()
                 warned = True
             time.sleep(min(1.0, max(0.0, _BUSY["timeout_s"] - waited)))
+
+
+def _busy(waited: float, what: str) -> StoreBusy:
+    return StoreBusy(
+        f"tracking.uri = {_BUSY['uri']}: the MLflow store stayed locked by another process for {waited:.0f} s "
+        f"while {what} (tracking.busy_timeout_s = {_BUSY['timeout_s']:g}); wait for the other run to finish or "
+        "resume it, raise tracking.busy_timeout_s, or log to another store (tracking.uri=...)")
+
+
+def _warn_busy() -> None:
+    log.warning("MLflow store %s is locked by another process; waiting up to %g s (tracking.busy_timeout_s)",
+                _BUSY["uri"], _BUSY["timeout_s"])
+
+
+def wait_for_write_lock(settings: TrackingSettings) -> None:
+    """Before MLflow opens a SQLite store: wait until no other process holds its write lock, up to
+    ``tracking.busy_timeout_s``, then :class:`StoreBusy`. MLflow's own wait on the lock is fixed at
+    20 s (``PRAGMA busy_timeout = 20000`` in ``mlflow/store/db/utils.py``), so without this a shorter
+    setting would not be kept, and a longer one only in steps of 20 s. Takes and releases the lock
+    at once (``BEGIN IMMEDIATE``; readers are not blocked); a store not made yet is left to MLflow."""
+    import sqlite3
+
+    if not settings.uri.startswith("sqlite:///"):
+        return
+    db = Path(settings.uri.removeprefix("sqlite:///"))
+    if not db.is_file():
+        return
+    start, warned = time.monotonic(), False
+    while True:
+        waited = time.monotonic() - start
+        # SQLite waits in C: short tries, so Ctrl-C and SIGTERM are handled between them
+        con = sqlite3.connect(db, timeout=min(0.25, max(0.0, settings.busy_timeout_s - waited)),
+                              isolation_level=None)
+        try:
+            con.execute("BEGIN IMMEDIATE")
+            con.execute("ROLLBACK")
+            return
+        except sqlite3.OperationalError as exc:
+            if not _is_locked(exc):
+                raise
+        finally:
+            con.close()
+        if time.monotonic() - start >= settings.busy_timeout_s:
+            break
+        if not warned:
+            _warn_busy()
+            warned = True
+    raise _busy(time.monotonic() - start, "waiting for its write lock")
 
 
 def prepare_store(settings: TrackingSettings) -> str:
@@ -428,6 +471,7 @@ def stage_run(settings: TrackingSettings, run_name: str, tags: Mapping[str, str]
                 raise SystemExit(128 + exc.signum) from exc
             return
         _BUSY.update(uri=settings.uri, timeout_s=settings.busy_timeout_s)
+        wait_for_write_lock(settings)
         exp_id = waiting_on_busy_store(prepare_store, "opening the experiment", settings)
         waiting_on_busy_store(mark_stale_runs, "marking stale runs")
         run = waiting_on_busy_store(_start, "starting the run", exp_id, run_name,
