@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
 import torch
 
 from pipeline.assembly.build import build_safety
@@ -20,11 +21,13 @@ from pipeline.assembly.rig import composed_rig
 from pipeline.core.config import compose
 from pipeline.geometry.compiled_kinematics import ChainArrays, SafetyArrays, chain_values, clearance_values
 from pipeline.learning.models import build_model
+from pipeline.motion.timing import rig_motions
+from pipeline.round.oracle import KinematicOracle
 from pipeline.solvers.compiled import CompiledHybridSolver, CompiledMLP
 
 
 def warm() -> dict[str, float]:
-    """Seconds spent on each group of kernels (the hybrid's, the rig's)."""
+    """Seconds spent on each group of kernels (the hybrid's, the rig's, the round oracle's)."""
     cfg = compose(["rig=twin"])
     seconds = {}
     t0 = time.perf_counter()
@@ -45,6 +48,12 @@ def warm() -> dict[str, float]:
         boom.clearances(parks[i][None])  # frames and clearances of one boom
     rig.boom_clearance(0, parks[0][None], 1, parks[1][None])  # ends and the indexed pair clearances
     seconds["rig"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    motions = rig_motions(cfg.motion, rig.booms)
+    oracle = KinematicOracle(rig, [torch.stack([p, p]) for p in parks], [m.joints for m in motions])
+    move = {"t0": np.zeros(1), "u": np.array([0]), "v": np.array([1])}  # node 0 to the park: one moving pair
+    oracle.check(0, move, 1, move, np.zeros(1), np.ones(1))  # the round oracle's compiled advancement
+    seconds["oracle"] = time.perf_counter() - t0
     return seconds
 
 

@@ -256,3 +256,48 @@ def test_failed_moves_are_marked_move_unclear_in_the_trajectory(demo):
     assert set(ev[i_ret + 1:i_col]) == {"move_unclear"}
     n_unclear = sum(e == "move_unclear" for e in ev)
     assert n_unclear >= i_col - i_ret - 1
+
+
+def test_compiled_advancement_is_the_torch_one_to_the_last_bit(demo):
+    """The oracle's advancement compiled (pipeline/round/compiled_oracle.py) against its torch version on
+    the same pairs of segments: standing, straight moves, park legs and a detour, both boom orders. The
+    first conflicts, least clearances and evaluation counts are equal, not close: every operation is
+    the same in the same order."""
+    rig, inst, oracle = demo
+    b, u, v = _unclear_move(rig, inst, oracle)
+    routes = [[] for _ in range(inst.n_booms)]
+    routes[b] = [u, v]
+    MoveBook(oracle, inst.n_holes, RoundSettings()).ensure(inst, routes)
+    assert oracle.detour(b, u, v) is not None
+    gen = np.random.default_rng(3)
+    n, H = 600, inst.n_holes
+
+    def segments(boom):
+        nodes = np.append(np.flatnonzero(inst.reach[boom]), H)
+        su, sv = gen.choice(nodes, n), gen.choice(nodes, n)
+        still = gen.random(n) < 0.2
+        sv[still] = su[still]
+        if boom == b:  # the detoured move, both ways
+            on, fwd = gen.random(n) < 0.2, gen.random(n) < 0.5
+            su[on & fwd], sv[on & fwd] = u, v
+            su[on & ~fwd], sv[on & ~fwd] = v, u
+        return {"t0": gen.uniform(0, 6, n), "u": su, "v": sv}
+
+    seg = [segments(0), segments(1)]
+    lo = gen.uniform(0, 8, n)
+    hi = lo + gen.uniform(0, 12, n)
+    answers = {}
+    for compiled in (True, False):
+        oracle.compiled = compiled
+        before = oracle.evaluations
+        try:
+            answers[compiled] = (*oracle.check(0, seg[0], 1, seg[1], lo, hi),
+                                 *oracle.check(1, seg[1], 0, seg[0], lo, hi), oracle.evaluations - before)
+        finally:
+            oracle.compiled = True
+    for got, want in zip(answers[True], answers[False], strict=True):
+        np.testing.assert_array_equal(got, want)
+    first, least = answers[True][:2]
+    moving = ~((seg[0]["u"] == seg[0]["v"]) & (seg[1]["u"] == seg[1]["v"]))
+    assert np.isfinite(first[moving]).sum() > 10 and np.isinf(first[moving]).sum() > 10  # conflicts and clear pairs
+    assert np.isfinite(least[moving]).all()

@@ -84,6 +84,38 @@ PRUNE_SLACK = 1e-9  # m: a capsule pair is skipped only when its bound clears th
 
 
 @njit(cache=True)
+def capsule_min(ea, eb, ra, rb, bound):
+    """Smallest capsule distance less both radii of one configuration of boom a (ends ``ea``) and one of
+    boom b (``eb``); ``bound (A, B)`` is scratch. NaN ends give NaN or a value (as the every-pair minimum,
+    which skips NaN); :func:`indexed_clearances` says why pairs are skipped."""
+    A, B = ra.shape[0], rb.shape[0]
+    bi, bj, low = 0, 0, np.inf
+    for i in range(A):
+        for j in range(B):
+            g = 0.0
+            for k in range(3):
+                lo_a, hi_a = min(ea[2 * i, k], ea[2 * i + 1, k]), max(ea[2 * i, k], ea[2 * i + 1, k])
+                lo_b, hi_b = min(eb[2 * j, k], eb[2 * j + 1, k]), max(eb[2 * j, k], eb[2 * j + 1, k])
+                gap = max(lo_b - hi_a, lo_a - hi_b, 0.0)
+                g += gap * gap
+            v = np.sqrt(g) - ra[i] - rb[j]
+            bound[i, j] = v
+            if v < low:
+                bi, bj, low = i, j, v
+    dist, _, _ = segment_distance(ea[2 * bi], ea[2 * bi + 1], eb[2 * bj], eb[2 * bj + 1])
+    best = dist - ra[bi] - rb[bj]
+    for i in range(A):
+        for j in range(B):
+            if (i == bi and j == bj) or bound[i, j] >= best + PRUNE_SLACK:
+                continue
+            dist, _, _ = segment_distance(ea[2 * i], ea[2 * i + 1], eb[2 * j], eb[2 * j + 1])
+            c = dist - ra[i] - rb[j]
+            if c < best:
+                best = c
+    return best
+
+
+@njit(cache=True)
 def indexed_clearances(Ea, Eb, ia, ib, ra, rb, d_boom):
     """Clearance ``(P,)`` (smallest capsule distance less both radii, less ``d_boom``) of boom a's
     configuration ``ia[p]`` (ends ``Ea``) against boom b's ``ib[p]`` (ends ``Eb``).
@@ -94,34 +126,11 @@ def indexed_clearances(Ea, Eb, ia, ib, ra, rb, d_boom):
     bound is measured first; a pair whose bound clears that best by ``PRUNE_SLACK`` cannot be the
     minimum, so skipping it leaves the minimum as every pair gives it, to the last bit
     (tests/test_compiled_rig.py; about half the time of measuring every pair on the round's calls)."""
-    P, A, B = ia.shape[0], ra.shape[0], rb.shape[0]
+    P = ia.shape[0]
     out = np.empty(P)
-    bound = np.empty((A, B))
+    bound = np.empty((ra.shape[0], rb.shape[0]))
     for p in range(P):
-        ea, eb = Ea[ia[p]], Eb[ib[p]]
-        bi, bj, low = 0, 0, np.inf
-        for i in range(A):
-            for j in range(B):
-                g = 0.0
-                for k in range(3):
-                    lo_a, hi_a = min(ea[2 * i, k], ea[2 * i + 1, k]), max(ea[2 * i, k], ea[2 * i + 1, k])
-                    lo_b, hi_b = min(eb[2 * j, k], eb[2 * j + 1, k]), max(eb[2 * j, k], eb[2 * j + 1, k])
-                    gap = max(lo_b - hi_a, lo_a - hi_b, 0.0)
-                    g += gap * gap
-                v = np.sqrt(g) - ra[i] - rb[j]
-                bound[i, j] = v
-                if v < low:
-                    bi, bj, low = i, j, v
-        dist, _, _ = segment_distance(ea[2 * bi], ea[2 * bi + 1], eb[2 * bj], eb[2 * bj + 1])
-        best = dist - ra[bi] - rb[bj]
-        for i in range(A):
-            for j in range(B):
-                if (i == bi and j == bj) or bound[i, j] >= best + PRUNE_SLACK:
-                    continue
-                dist, _, _ = segment_distance(ea[2 * i], ea[2 * i + 1], eb[2 * j], eb[2 * j + 1])
-                c = dist - ra[i] - rb[j]
-                if c < best:
-                    best = c
+        best = capsule_min(Ea[ia[p]], Eb[ib[p]], ra, rb, bound)
         if best != best:  # NaN ends (joints not finite): as the unpruned minimum, which skips NaN
             best = np.inf
         out[p] = best - d_boom

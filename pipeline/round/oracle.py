@@ -43,6 +43,7 @@ import torch
 from pipeline.motion.checks import lever_arms
 from pipeline.motion.path import Path
 from pipeline.motion.timing import JointLimits, Profile, profile
+from pipeline.round.compiled_oracle import advance
 
 D = torch.float64
 
@@ -81,6 +82,9 @@ class KinematicOracle:
         # action's sweep is fixed by its boom, kind and nodes (a move's motion never changes once looked at)
         self.sweep_pairs: dict[tuple, tuple[float, float]] = {}
         self._stacked: list[dict | None] = [None for _ in self.joints]
+        # the advancement compiled where both booms have a nominal chain (pipeline.round.compiled_oracle);
+        # False keeps it on torch (the reference the kernel is tested against, and calibrated booms' path)
+        self.compiled = True
 
     def set_detour(self, b: int, u: int, v: int, path: Path) -> None:
         """Boom b moves u -> v along ``path`` (it starts at node u's joints up to full turns and ends at
@@ -158,6 +162,10 @@ class KinematicOracle:
         pa, va = self.speed_bound(a, seg_a["u"][moving], seg_a["v"][moving])
         pb, vb = self.speed_bound(b, seg_b["u"][moving], seg_b["v"][moving])
         v = (va + vb).clamp_min(1e-9)
+        if self.compiled and self.rig.booms[a].kernel is not None and self.rig.booms[b].kernel is not None:
+            first[moving], least[moving] = self._advance_compiled(a, pa, seg_a["t0"][moving], b, pb,
+                                                                  seg_b["t0"][moving], lo[moving], hi[moving], v)
+            return first, least
         t = torch.as_tensor(lo[moving], dtype=D).clone()
         hi_m = torch.as_tensor(hi[moving], dtype=D)
         ta0 = torch.as_tensor(seg_a["t0"][moving], dtype=D)
@@ -193,6 +201,39 @@ class KinematicOracle:
                 active = active[~hit & (t[active] < hi_m[active])]
         first[moving], least[moving] = f.numpy(), m.numpy()
         return first, least
+
+    def _advance_compiled(self, a: int, pa: dict, t0a, b: int, pb: dict, t0b, lo, hi, v: torch.Tensor):
+        """:meth:`check`'s advancement of moving pairs in :func:`pipeline.round.compiled_oracle.advance`:
+        the same instants and numbers, the booms in the order ``Rig.boom_clearance`` measures them."""
+        if a > b:
+            a, pa, t0a, b, pb, t0b = b, pb, t0b, a, pa, t0a
+        f, m, evaluations = advance(_f64(lo), _f64(hi), _f64(t0a), _f64(t0b), _f64(v), _motion(pa), _motion(pb),
+                                    self._kernel_boom(a), self._kernel_boom(b), float(self.rig.d_boom),
+                                    self.floor, self.margin, self.sample_m / 2, self.block)
+        self.evaluations += evaluations
+        return f, m
+
+    def _kernel_boom(self, b: int):
+        k = self.rig.booms[b].kernel
+        return k.chain, k.base, k.safety.end_frame, k.safety.end_along, k.radius
+
+
+def _f64(x) -> np.ndarray:
+    return np.ascontiguousarray(torch.as_tensor(x).numpy() if isinstance(x, torch.Tensor) else x, dtype=np.float64)
+
+
+def _motion(motion: dict) -> tuple:
+    """A batch of :meth:`KinematicOracle.speed_bound` as the kernel's tuple of arrays."""
+    prof, stacked = motion["straight"], motion["stacked"]
+    straight = [_f64(getattr(prof, f)) for f in ("start", "step", "duration", "tau", "accel", "peak")]
+    detour = np.ascontiguousarray(motion["detour"].numpy(), dtype=np.int64)
+    if stacked is None:
+        n = straight[0].shape[1]
+        segs = [np.empty((0, n)), np.empty((0, n))] + [np.empty(0) for _ in range(5)]
+        return (*straight, detour, *segs, 0.0, np.empty(0))
+    seg = stacked["seg"]
+    segs = [_f64(getattr(seg, f)) for f in ("start", "step", "duration", "tau", "accel", "peak")]
+    return (*straight, detour, *segs, _f64(stacked["starts"]), float(stacked["span"]), _f64(stacked["duration"]))
 
 
 def _positions(motion: dict, pair: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
