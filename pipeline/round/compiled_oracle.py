@@ -9,7 +9,7 @@ depend on its own clearances only), with each instant's joints (:func:`path_at`,
 (:func:`pipeline.geometry.compiled_rig.rig_frames_into`) and the boom-boom clearance
 (:func:`pipeline.geometry.compiled_rig.capsule_min`) in one compiled loop. Every operation is the
 torch version's, in its order, so both give the same instants and the same numbers to the last bit
-(tests/test_compiled_oracle.py holds them equal); the torch version stays for calibrated booms,
+(tests/test_detours.py holds them equal); the torch version stays for calibrated booms,
 whose chains the kernels do not know.
 """
 

@@ -219,7 +219,7 @@ class KinematicOracle:
 
 
 def _f64(x) -> np.ndarray:
-    return np.ascontiguousarray(torch.as_tensor(x).numpy() if isinstance(x, torch.Tensor) else x, dtype=np.float64)
+    return np.ascontiguousarray(x.numpy() if isinstance(x, torch.Tensor) else x, dtype=np.float64)
 
 
 def _motion(motion: dict) -> tuple:
