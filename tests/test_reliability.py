@@ -439,6 +439,43 @@ def test_a_store_locked_by_another_process_gets_a_named_wait_then_a_clear_error(
         TrackingSettings.from_config({**node, "busy_timeout_s": -1})
 
 
+def test_a_signal_while_waiting_on_the_store_exits_with_its_status_and_starts_no_run(tmp_path):
+    """SIGTERM while a stage waits for another process's write lock: exit status 128 + 15 (as during the
+    run), not a ``Terminated`` traceback with status 1, and no run left behind."""
+    import threading
+
+    from pipeline.core import signals
+
+    node = {"enabled": True, "uri": f"sqlite:///{tmp_path}/mlflow.db", "experiment": "boom-ik",
+            "artifact_root": str(tmp_path / "art"), "busy_timeout_s": 60}
+    settings = TrackingSettings.from_config(node)
+    with stage_run(settings, "first", {"stage": "test"}):
+        pass
+    holder = sqlite3.connect(tmp_path / "mlflow.db", timeout=0, isolation_level=None, check_same_thread=False)
+    holder.execute("BEGIN IMMEDIATE")
+
+    def terminate_once_handled():  # only once stage_run handles SIGTERM: the default would end pytest
+        deadline = time.monotonic() + 30
+        while signal.getsignal(signal.SIGTERM) is not signals._handler and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)  # into the wait
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=terminate_once_handled, daemon=True).start()
+    start = time.monotonic()
+    try:
+        with pytest.raises(SystemExit) as ended:
+            with stage_run(settings, "second", {"stage": "test"}):
+                pass
+    finally:
+        holder.execute("ROLLBACK")
+        holder.close()
+    assert ended.value.code == 128 + signal.SIGTERM and time.monotonic() - start < 30
+    runs = MlflowClient(settings.uri).search_runs(
+        [MlflowClient(settings.uri).get_experiment_by_name("boom-ik").experiment_id])
+    assert [r.info.run_name for r in runs] == ["first"]
+
+
 def test_a_swallowed_signal_stops_a_set_before_it_is_published(tmp_path):
     """A SIGTERM whose exception a library swallowed (OR-Tools runs Python callbacks inside its solve) is
     still pending when the set is published: nothing is renamed, the previous output stays."""

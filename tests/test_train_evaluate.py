@@ -163,6 +163,53 @@ def test_a_few_steps_lower_each_methods_loss(safety, method):
     assert float(loss().detach()) < 0.7 * before
 
 
+@pytest.mark.parametrize(("supervised", "lam", "mu", "metric"), [
+    (True, 1.0, 0.0, "pose"), (True, 1.0, 0.0, "range"), (True, 1.0, 1.0, "range"), (False, 1.0, 0.0, "range"),
+    (False, 1.0, 10.0, "range")])
+def test_steps_between_evaluations_skip_the_logged_terms_and_train_the_same_to_the_bit(
+        safety, monkeypatch, supervised, lam, mu, metric):
+    """``fit`` computes the terms that are only logged (the supervised rows' forward kinematics and
+    clearances, UIKM's clearances) at its evaluation steps alone: the weights it ends with are those of
+    the same training with every term computed at every step, bit for bit."""
+    from pipeline.learning import training
+
+    boom = safety.boom
+    q_sup = sample_joints(256, boom, seed=25)
+    src = boom.pose6(q_sup).float()
+    objective = Objective(supervised, lam, mu, "norm", metric)
+    full = training.loss_terms
+    asked = []
+
+    def trained(every_term: bool):
+        torch.manual_seed(3)
+        model = build_model(boom, src.mean(0), src.std(0), 32, 2, "gelu")
+        batches = dataset_batches(src, q_sup.float() if supervised else None, 64, 4)
+
+        def terms(*args, logged=True):
+            asked.append(logged)
+            return full(*args, logged=logged or every_term)
+
+        monkeypatch.setattr(training, "loss_terms", terms)
+        history = training.fit(model, boom, safety, objective, batches, 12, 1e-2, src[:32], eval_every=5,
+                               progress=False)
+        return model.state_dict(), history
+
+    (fast, fast_history), (slow, slow_history) = trained(False), trained(True)
+    for name in slow:
+        assert torch.equal(fast[name], slow[name]), name
+    assert [r["step"] for r in fast_history] == [0, 5, 10, 11]
+    assert [{k: v for k, v in r.items() if k != "elapsed_s"} for r in fast_history] == \
+        [{k: v for k, v in r.items() if k != "elapsed_s"} for r in slow_history]
+    # not vacuous: fit asks for the loss alone between evaluations, which leaves out what the loss does not use
+    assert asked[:12] == [s in (0, 5, 10, 11) for s in range(12)]
+    between = full(build_model(boom, src.mean(0), src.std(0), 32, 2, "gelu"), boom, safety, objective, src[:8],
+                   q_sup[:8].float() if supervised else None, logged=False)
+    assert ("l_pos" in between) == (not supervised) and ("l_self" in between) == (mu > 0)
+    if not supervised:  # and eq. 16 is the written sum, mu = 0 or not (the terms its shortcut leaves out: zero)
+        logged = full(build_model(boom, src.mean(0), src.std(0), 32, 2, "gelu"), boom, safety, objective, src)
+        assert torch.equal(logged["loss"], lam * logged["l_pos"] + mu * sum(logged[f"l_{k}"] for k in SAFETY_KINDS))
+
+
 def test_penalty_step_through_the_network_reduces_violations(safety):
     """CUIKM's safety term, back-propagated into a network, pushes its solutions clear."""
     torch.manual_seed(1)

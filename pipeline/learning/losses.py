@@ -36,7 +36,10 @@ def safety_terms(penalties: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
 
 
 def total_loss(terms: dict[str, torch.Tensor], lam: float, mu: float) -> torch.Tensor:
-    """Eq. 16: ``lam * l_pos + mu * (l_self + l_wall + l_ground + l_arch)``."""
+    """Eq. 16: ``lam * l_pos + mu * (l_self + l_wall + l_ground + l_arch)`` (UIKM: ``mu = 0``, no
+    penalty terms needed)."""
+    if mu == 0:
+        return lam * terms["l_pos"]
     return lam * terms["l_pos"] + mu * sum(terms[f"l_{k}"] for k in SAFETY_KINDS)
 
 

@@ -173,38 +173,29 @@ def _warn_busy() -> None:
 
 def wait_for_write_lock(settings: TrackingSettings) -> None:
     """Before MLflow opens a SQLite store: wait until no other process holds its write lock, up to
-    ``tracking.busy_timeout_s``, then :class:`StoreBusy`. MLflow's own wait on the lock is fixed at
-    20 s (``PRAGMA busy_timeout = 20000`` in ``mlflow/store/db/utils.py``), so without this a shorter
-    setting would not be kept, and a longer one only in steps of 20 s. Takes and releases the lock
-    at once (``BEGIN IMMEDIATE``; readers are not blocked); a store not made yet is left to MLflow."""
-    import sqlite3
-
+    ``tracking.busy_timeout_s`` (:func:`waiting_on_busy_store`), then :class:`StoreBusy`. MLflow's own
+    wait on the lock is fixed at 20 s (``PRAGMA busy_timeout = 20000`` in ``mlflow/store/db/utils.py``),
+    so without this a shorter setting would not be kept, and a longer one only in steps of 20 s.
+    A store not made yet is left to MLflow."""
     if not settings.uri.startswith("sqlite:///"):
         return
     db = Path(settings.uri.removeprefix("sqlite:///"))
-    if not db.is_file():
-        return
-    start, warned = time.monotonic(), False
-    while True:
-        waited = time.monotonic() - start
-        # SQLite waits in C: short tries, so Ctrl-C and SIGTERM are handled between them
-        con = sqlite3.connect(db, timeout=min(0.25, max(0.0, settings.busy_timeout_s - waited)),
-                              isolation_level=None)
-        try:
-            con.execute("BEGIN IMMEDIATE")
-            con.execute("ROLLBACK")
-            return
-        except sqlite3.OperationalError as exc:
-            if not _is_locked(exc):
-                raise
-        finally:
-            con.close()
-        if time.monotonic() - start >= settings.busy_timeout_s:
-            break
-        if not warned:
-            _warn_busy()
-            warned = True
-    raise _busy(time.monotonic() - start, "waiting for its write lock")
+    if db.is_file():
+        waiting_on_busy_store(_try_write_lock, "waiting for its write lock", db)
+
+
+def _try_write_lock(db: Path) -> None:
+    """Take the write lock and release it at once (``BEGIN IMMEDIATE``; readers are not blocked), or
+    raise SQLite's "database is locked" after a short try: SQLite waits in C, where Ctrl-C and SIGTERM
+    are not handled, so the waiting is done between tries."""
+    import sqlite3
+
+    con = sqlite3.connect(db, timeout=0.25, isolation_level=None)
+    try:
+        con.execute("BEGIN IMMEDIATE")
+        con.execute("ROLLBACK")
+    finally:
+        con.close()
 
 
 def prepare_store(settings: TrackingSettings) -> str:
@@ -471,12 +462,15 @@ def stage_run(settings: TrackingSettings, run_name: str, tags: Mapping[str, str]
                 raise SystemExit(128 + exc.signum) from exc
             return
         _BUSY.update(uri=settings.uri, timeout_s=settings.busy_timeout_s)
-        wait_for_write_lock(settings)
-        exp_id = waiting_on_busy_store(prepare_store, "opening the experiment", settings)
-        waiting_on_busy_store(mark_stale_runs, "marking stale runs")
-        run = waiting_on_busy_store(_start, "starting the run", exp_id, run_name,
-                                    {**process_tags(), **dict(tags or {})},
-                                    bool(system_metrics and settings.system_metrics), resume_run_id)
+        try:  # a signal while waiting on the store: no run exists yet, so only the exit status to set
+            wait_for_write_lock(settings)
+            exp_id = waiting_on_busy_store(prepare_store, "opening the experiment", settings)
+            waiting_on_busy_store(mark_stale_runs, "marking stale runs")
+            run = waiting_on_busy_store(_start, "starting the run", exp_id, run_name,
+                                        {**process_tags(), **dict(tags or {})},
+                                        bool(system_metrics and settings.system_metrics), resume_run_id)
+        except Terminated as exc:
+            raise SystemExit(128 + exc.signum) from exc
         run_id = run.info.run_id
         try:
             yield StageRun(run_id)
