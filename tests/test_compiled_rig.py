@@ -1,7 +1,7 @@
 """The compiled rig clearances held to the torch ones: each mounted boom's four clearances (the safety
 model on rig-frame frames) and the boom-boom clearance (BoomPair), on random joints of every boom of
-`twin` and `trio`, both signs, broadcast batches, either order of the booms, NaN joints; and a
-calibrated boom, which the kernels do not know, kept on torch. No timing here."""
+`twin` and `trio`, both signs, broadcast batches, either order of the booms, NaN joints; a calibrated
+boom's chain; and a boom that only looks calibrated, kept on torch. No timing here."""
 
 import math
 
@@ -135,22 +135,47 @@ def test_gradients_and_float32_take_torch(rigs):
     assert rig.boom_clearance(0, qa.float(), 1, qb.float()).dtype == torch.float32
 
 
-def test_a_calibrated_boom_is_not_given_to_the_kernels(safety, rigs):
-    spec = rig_spec("twin")
-    booms = dict(rig_booms(spec))
+def _calibrated_twin(safety, boom_class=BoomWithErrors):
+    booms = dict(rig_booms(rig_spec("twin")))
     nominal = booms["L"]
-    booms["L"] = BoomWithErrors(nominal, draw_errors(nominal, ErrorLevel(0.5, 0.5, 20.0), seed=0))
-    rig = load_rig("twin", safety.tunnel, safety.distances, safety.points_per_capsule, booms=booms)
-    qa, qb = _joints(nominal, 500, 5), _joints(booms["R"], 500, 6)
+    booms["L"] = boom_class(nominal, draw_errors(nominal, ErrorLevel(0.5, 0.5, 20.0), seed=0))
+    return load_rig("twin", safety.tunnel, safety.distances, safety.points_per_capsule, booms=booms), nominal
+
+
+def test_a_calibrated_boom_s_kernel_computes_its_calibrated_chain(safety, rigs):
+    """The kernels know the calibrated chain (each link premultiplied by its error transform): a calibrated
+    boom's own clearances and its boom-boom clearance equal torch's on the calibrated frames, which the
+    nominal chain's are not."""
+    rig, nominal = _calibrated_twin(safety)
+    qa, qb = _joints(nominal, 2000, 5), _joints(rig.booms[1].boom, 2000, 6)
+    assert rig.booms[0].kernel is not None and rig.booms[0].kernel.chain[-1].shape == (nominal.n_rows, 4, 4)
     c = rig.boom_clearance(0, qa, 1, qb)
-    assert rig.booms[0].kernel is None and rig.booms[1].kernel is not None
+    slow = _torch_clearance(rig, 0, qa, 1, qb)  # the calibrated chain, through torch
+    assert (c - slow).abs().max() <= 1e-12 and torch.equal(c < 0, slow < 0)
+    assert (slow < 0).any() and (slow > 0).any()
     own = rig.booms[0].clearances(qa)
     torch_own = rig.booms[0].safety.clearances_from_frames(rig.booms[0].frames(qa))
-    assert all(torch.equal(own[k], torch_own[k]) for k in SAFETY_KINDS)
-    assert torch.equal(c, _torch_clearance(rig, 0, qa, 1, qb))  # the calibrated chain, through torch
-    assert (c - rigs["twin"].boom_clearance(0, qa, 1, qb)).abs().max() > 1e-3  # which the nominal one is not
+    assert all((own[k] - torch_own[k]).abs().max() <= 1e-12 for k in SAFETY_KINDS)
+    assert (c - rigs["twin"].boom_clearance(0, qa, 1, qb)).abs().max() > 1e-3  # not the nominal chain's
     with pytest.raises(InputError, match="boom 'jumbo8' \\(BoomWithErrors\\).*compiled kernels know only"):
-        ChainArrays.from_boom(booms["L"])
+        ChainArrays.from_boom(rig.booms[0].boom)  # the hybrid's kernels (they need the Jacobian too)
+
+
+class _NotItsErrors(BoomWithErrors):
+    """BoomWithErrors' interface, but links that are not ``E_i @ T_i``: a kernel built from the interface
+    would compute another chain."""
+
+    def link_transforms(self, q):
+        links = super().link_transforms(q).clone()
+        links[..., 2, :3, 3] += 0.01
+        return links
+
+
+def test_a_boom_that_only_looks_calibrated_stays_on_torch(safety):
+    rig, nominal = _calibrated_twin(safety, _NotItsErrors)
+    assert rig.booms[0].kernel is None and rig.booms[1].kernel is not None  # the probe of its frames refused it
+    qa, qb = _joints(nominal, 200, 7), _joints(rig.booms[1].boom, 200, 8)
+    assert torch.equal(rig.boom_clearance(0, qa, 1, qb), _torch_clearance(rig, 0, qa, 1, qb))
 
 
 def test_bad_joint_shapes_are_named(rigs):

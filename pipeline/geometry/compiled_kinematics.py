@@ -36,6 +36,27 @@ def nominal_chain(boom: Boom) -> bool:
     return type(boom).link_transforms is Boom.link_transforms and type(boom).frames is Boom.frames
 
 
+NO_ERRORS = np.zeros((0, 4, 4))  # the nominal chain's error transforms: none
+
+
+def chain_and_errors(boom: Boom) -> tuple[Boom, np.ndarray] | None:
+    """What the rig kernels compute for ``boom``: its nominal D-H boom and the constant rigid transforms
+    ``E (R, 4, 4)`` that premultiply its links (:func:`calibrated_frames_into`), :data:`NO_ERRORS` for the
+    nominal chain; None for a chain of any other kind. A calibrated boom is read through the interface
+    of :class:`~pipeline.calibration.error_model.BoomWithErrors` (``nominal``, ``error_transforms()``),
+    which lives above this layer; :meth:`pipeline.geometry.compiled_rig.CompiledBoom.for_boom` checks
+    the kernel's frames against the boom's own before they are used."""
+    if nominal_chain(boom):
+        return boom, NO_ERRORS
+    nominal, errors = getattr(boom, "nominal", None), getattr(boom, "error_transforms", None)
+    if not (isinstance(nominal, Boom) and nominal_chain(nominal) and callable(errors)
+            and type(boom).frames is Boom.frames):
+        return None
+    E = np.ascontiguousarray(errors(torch.float64).detach().cpu().numpy(), dtype=np.float64)
+    rigid = E.shape == (nominal.n_rows, 4, 4) and bool((E[:, 3] == np.array([0.0, 0.0, 0.0, 1.0])).all())
+    return (nominal, E) if rigid else None
+
+
 @dataclass(frozen=True)
 class ChainArrays:
     """A :class:`Boom` as arrays: D-H rows, which parameter of which row each joint drives, the
@@ -135,46 +156,87 @@ assert SAFETY_KINDS == ("self", "wall", "ground", "arch")  # the kernels' cleara
 
 # ---------------------------------------------------------------------------------------------- chain
 @njit(cache=True)
-def frames_into(q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, F):
-    """Every frame of the chain at joints ``q (n,)`` into ``F (R + 2, 4, 4)``: the base, one per
-    D-H row, the tool (as :meth:`Boom.frames`)."""
-    R = rows.shape[0]
+def _link(k, q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param):
+    """The top three rows of D-H row ``k``'s link transform at joints ``q`` (its last row is 0, 0, 0, 1)."""
+    a, theta, d = rows[k, 1], rows[k, 2], rows[k, 3]
+    for j in range(joint_row.shape[0]):
+        if joint_row[j] == k:
+            if joint_param[j] == 0:
+                theta += q[j]
+            elif joint_param[j] == 1:
+                d += q[j]
+            else:
+                a += q[j]
+    ct, st, ca, sa = math.cos(theta), math.sin(theta), cos_alpha[k], sin_alpha[k]
+    if modified:
+        return (ct, -st, 0.0, a,
+                st * ca, ct * ca, -sa, -d * sa,
+                st * sa, ct * sa, ca, d * ca)
+    return (ct, -st * ca, st * sa, a * ct,
+            st, ct * ca, -ct * sa, a * st,
+            0.0, sa, ca, d)
+
+
+@njit(cache=True)
+def _times_link(P, N, link):
+    """``N = P @ L``, L's last row being (0, 0, 0, 1)."""
+    l00, l01, l02, l03, l10, l11, l12, l13, l20, l21, l22, l23 = link
+    for i in range(4):
+        p0, p1, p2, p3 = P[i, 0], P[i, 1], P[i, 2], P[i, 3]
+        N[i, 0] = p0 * l00 + p1 * l10 + p2 * l20
+        N[i, 1] = p0 * l01 + p1 * l11 + p2 * l21
+        N[i, 2] = p0 * l02 + p1 * l12 + p2 * l22
+        N[i, 3] = p0 * l03 + p1 * l13 + p2 * l23 + p3
+
+
+@njit(cache=True)
+def _identity(B):
     for i in range(4):
         for j in range(4):
-            F[0, i, j] = 1.0 if i == j else 0.0
-    for k in range(R):
-        a, theta, d = rows[k, 1], rows[k, 2], rows[k, 3]
-        for j in range(joint_row.shape[0]):
-            if joint_row[j] == k:
-                if joint_param[j] == 0:
-                    theta += q[j]
-                elif joint_param[j] == 1:
-                    d += q[j]
-                else:
-                    a += q[j]
-        ct, st, ca, sa = math.cos(theta), math.sin(theta), cos_alpha[k], sin_alpha[k]
-        if modified:
-            l00, l01, l02, l03 = ct, -st, 0.0, a
-            l10, l11, l12, l13 = st * ca, ct * ca, -sa, -d * sa
-            l20, l21, l22, l23 = st * sa, ct * sa, ca, d * ca
-        else:
-            l00, l01, l02, l03 = ct, -st * ca, st * sa, a * ct
-            l10, l11, l12, l13 = st, ct * ca, -ct * sa, a * st
-            l20, l21, l22, l23 = 0.0, sa, ca, d
-        P, N = F[k], F[k + 1]  # N = P @ L, L's last row being (0, 0, 0, 1)
-        for i in range(4):
-            p0, p1, p2, p3 = P[i, 0], P[i, 1], P[i, 2], P[i, 3]
-            N[i, 0] = p0 * l00 + p1 * l10 + p2 * l20
-            N[i, 1] = p0 * l01 + p1 * l11 + p2 * l21
-            N[i, 2] = p0 * l02 + p1 * l12 + p2 * l22
-            N[i, 3] = p0 * l03 + p1 * l13 + p2 * l23 + p3
-    last, out = F[R], F[R + 1]
+            B[i, j] = 1.0 if i == j else 0.0
+
+
+@njit(cache=True)
+def _tool_frame(last, tool, out):
+    """The tool frame: ``last`` with its origin moved by ``tool`` along its axes."""
     for i in range(3):
         for j in range(3):
             out[i, j] = last[i, j]
         out[i, 3] = last[i, 0] * tool[0] + last[i, 1] * tool[1] + last[i, 2] * tool[2] + last[i, 3]
     for j in range(4):
         out[3, j] = last[3, j]
+
+
+@njit(cache=True)
+def frames_into(q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, F):
+    """Every frame of the chain at joints ``q (n,)`` into ``F (R + 2, 4, 4)``: the base, one per
+    D-H row, the tool (as :meth:`Boom.frames`)."""
+    R = rows.shape[0]
+    _identity(F[0])
+    for k in range(R):
+        _times_link(F[k], F[k + 1], _link(k, q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param))
+    _tool_frame(F[R], tool, F[R + 1])
+
+
+@njit(cache=True)
+def calibrated_frames_into(q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, errors, F):
+    """:func:`frames_into` of a chain whose links are ``E_k @ L_k``: a calibrated boom's
+    (:class:`pipeline.calibration.error_model.BoomWithErrors`), ``errors (R, 4, 4)`` its error
+    transforms, rigid (last row 0, 0, 0, 1)."""
+    R = rows.shape[0]
+    _identity(F[0])
+    for k in range(R):
+        l00, l01, l02, l03, l10, l11, l12, l13, l20, l21, l22, l23 = _link(
+            k, q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param)
+        E = errors[k]
+        e = (E[0, 0] * l00 + E[0, 1] * l10 + E[0, 2] * l20, E[0, 0] * l01 + E[0, 1] * l11 + E[0, 2] * l21,
+             E[0, 0] * l02 + E[0, 1] * l12 + E[0, 2] * l22, E[0, 0] * l03 + E[0, 1] * l13 + E[0, 2] * l23 + E[0, 3],
+             E[1, 0] * l00 + E[1, 1] * l10 + E[1, 2] * l20, E[1, 0] * l01 + E[1, 1] * l11 + E[1, 2] * l21,
+             E[1, 0] * l02 + E[1, 1] * l12 + E[1, 2] * l22, E[1, 0] * l03 + E[1, 1] * l13 + E[1, 2] * l23 + E[1, 3],
+             E[2, 0] * l00 + E[2, 1] * l10 + E[2, 2] * l20, E[2, 0] * l01 + E[2, 1] * l11 + E[2, 2] * l21,
+             E[2, 0] * l02 + E[2, 1] * l12 + E[2, 2] * l22, E[2, 0] * l03 + E[2, 1] * l13 + E[2, 2] * l23 + E[2, 3])
+        _times_link(F[k], F[k + 1], e)
+    _tool_frame(F[R], tool, F[R + 1])
 
 
 @njit(cache=True)

@@ -13,8 +13,10 @@ clamped segment distance of every capsule pair less both radii and ``d_boom``, i
 :class:`~pipeline.geometry.boom_pair.BoomPair`'s order. tests/test_compiled_rig.py holds both equal to
 the torch versions at float64 rounding level.
 
-They know only the nominal D-H chain, so :meth:`CompiledBoom.for_boom` answers ``None`` for a boom
-whose chain is not :class:`Boom`'s own (a calibrated :class:`BoomWithErrors`): its clearances stay on torch.
+They know the nominal D-H chain and the calibrated one (each link premultiplied by its error transform,
+:class:`~pipeline.calibration.error_model.BoomWithErrors`), so a calibrated rig's round and moves run
+compiled too; :meth:`CompiledBoom.for_boom` answers ``None`` for a chain of any other kind (its clearances
+stay on torch) and checks a calibrated boom's kernel frames against its own before giving it out.
 
 Joints that are not finite (a NaN row of a boom's joint table: a hole it cannot drill) give -inf,
 never clear under any comparison: the kernels' minima would skip a NaN, and torch's where-based
@@ -33,25 +35,30 @@ from pipeline.geometry.compiled_kinematics import (
     ChainArrays,
     SafetyArrays,
     _ends,
+    calibrated_frames_into,
+    chain_and_errors,
     clearances_into,
     frames_into,
-    nominal_chain,
     segment_distance,
 )
 from pipeline.geometry.kinematics import Boom
 
 
 @njit(cache=True)
-def rig_frames_into(q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, base, F):
-    """:func:`frames_into`, then every origin moved by ``base (3,)``: the frames in the rig frame."""
-    frames_into(q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, F)
+def rig_frames_into(q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, errors, base, F):
+    """:func:`frames_into` (:func:`calibrated_frames_into` where ``errors`` has a transform per row),
+    then every origin moved by ``base (3,)``: the frames in the rig frame."""
+    if errors.shape[0] == 0:
+        frames_into(q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, F)
+    else:
+        calibrated_frames_into(q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, errors, F)
     for f in range(F.shape[0]):
         for i in range(3):
             F[f, i, 3] = F[f, i, 3] + base[i]
 
 
 @njit(cache=True)
-def boom_clearances(Q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, base, end_frame,
+def boom_clearances(Q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, errors, base, end_frame,
                     end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t, exact):
     """The four clearances ``(K, 4)`` (:data:`SAFETY_KINDS` order) of joints ``Q (K, n)`` of a boom
     mounted at ``base``: the safety model on its rig-frame frames."""
@@ -61,21 +68,22 @@ def boom_clearances(Q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_pa
     arg, frac = np.empty(4, dtype=np.int64), np.empty(4)
     E = np.empty((end_frame.shape[0], 3))
     for k in range(K):
-        rig_frames_into(Q[k], rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, base, F)
+        rig_frames_into(Q[k], rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, errors, base, F)
         clearances_into(F, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t,
                         exact, out[k], arg, frac, E)
     return out
 
 
 @njit(cache=True)
-def capsule_ends(Q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, base, end_frame, end_along):
+def capsule_ends(Q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, errors, base, end_frame,
+                 end_along):
     """Capsule axis ends ``(K, 2 * bodies, 3)`` (start, end of each body) of joints ``Q (K, n)`` in the
     rig frame."""
     K = Q.shape[0]
     F = np.empty((rows.shape[0] + 2, 4, 4))
     E = np.empty((K, end_frame.shape[0], 3))
     for k in range(K):
-        rig_frames_into(Q[k], rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, base, F)
+        rig_frames_into(Q[k], rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, errors, base, F)
         _ends(F, end_frame, end_along, E[k])
     return E
 
@@ -145,20 +153,40 @@ def _joints(q: torch.Tensor, n: int, who: str) -> np.ndarray:
 
 
 class CompiledBoom:
-    """One mounted boom for the kernels: its chain, base offset, safety model and capsules as arrays."""
+    """One mounted boom for the kernels: its chain (with a calibrated boom's error transforms), base
+    offset, safety model and capsules as arrays."""
 
     def __init__(self, boom: Boom, base, safety: SafetyModel):
-        c = ChainArrays.from_boom(boom)
+        chain = chain_and_errors(boom)
+        if chain is None:
+            raise InputError(f"boom '{boom.name}' ({type(boom).__name__}): its frames are neither the D-H chain of "
+                             "its rows nor that chain with per-row error transforms, the two the kernels know")
+        nominal, errors = chain
+        c = ChainArrays.from_boom(nominal)
         self.name, self.n = boom.name, boom.n_joints
-        self.chain = (c.rows, c.cos_alpha, c.sin_alpha, c.modified, c.joint_row, c.joint_param, c.tool)
+        self.chain = (c.rows, c.cos_alpha, c.sin_alpha, c.modified, c.joint_row, c.joint_param, c.tool, errors)
         self.base = np.array(base, dtype=np.float64)
         self.safety = SafetyArrays.from_model(safety)
         self.radius = self.safety.radius  # every body of the boom, as BoomPair's capsules
 
     @classmethod
     def for_boom(cls, boom: Boom, base, safety: SafetyModel) -> CompiledBoom | None:
-        """The kernels' boom, or ``None`` where its chain is not the nominal D-H one."""
-        return cls(boom, base, safety) if nominal_chain(boom) and nominal_chain(safety.boom) else None
+        """The kernels' boom, or ``None`` where its chain is not one they compute (the boom's clearances then
+        stay on torch). A calibrated boom is recognised by its interface, so its kernel's frames are checked
+        against the boom's own (torch) at two configurations before it is given out."""
+        if chain_and_errors(boom) is None or chain_and_errors(safety.boom) is None:
+            return None
+        kernel = cls(boom, base, safety)
+        if kernel.chain[-1].shape[0] == 0:
+            return kernel
+        lo, hi = boom.limits(torch.float64)
+        probe = boom.with_locks(torch.stack([lo + 0.3 * (hi - lo), lo + 0.8 * (hi - lo)]))
+        F = np.empty((boom.n_rows + 2, 4, 4))
+        for q in probe:
+            rig_frames_into(q.numpy(), *kernel.chain, np.zeros(3), F)
+            if not np.allclose(F, boom.frames(q).numpy(), rtol=0.0, atol=1e-9):
+                return None
+        return kernel
 
     def clearances(self, q: torch.Tensor) -> dict[str, torch.Tensor]:
         """:meth:`MountedBoom.clearances` of ``q (..., n)``: each kind ``(...)``."""

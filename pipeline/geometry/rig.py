@@ -137,7 +137,8 @@ class MountedBoom:
     @property
     def kernel(self) -> CompiledBoom | None:
         """This boom for the compiled kernels (:mod:`pipeline.geometry.compiled_rig`), built on first use;
-        ``None`` for a calibrated boom, whose clearances stay on torch, or with :attr:`compiled` off."""
+        ``None`` for a chain the kernels do not compute (its clearances stay on torch), or with :attr:`compiled`
+        off. A calibrated boom has one (:class:`~pipeline.geometry.compiled_rig.CompiledBoom`)."""
         if not self.compiled:
             return None
         if self._kernel is False:

@@ -1,4 +1,4 @@
-"""The conflict oracle's conservative advancement as one numba kernel, for booms with a nominal chain.
+"""The conflict oracle's conservative advancement as one numba kernel.
 
 :meth:`pipeline.round.oracle.KinematicOracle.check` advances all pairs of segments in lockstep with
 torch: a round is about twenty operations on small tensors, and a small round of the test face asks
@@ -9,8 +9,9 @@ depend on its own clearances only), with each instant's joints (:func:`path_at`,
 (:func:`pipeline.geometry.compiled_rig.rig_frames_into`) and the boom-boom clearance
 (:func:`pipeline.geometry.compiled_rig.capsule_min`) in one compiled loop. Every operation is the
 torch version's, in its order, so both give the same instants and the same numbers to the last bit
-(tests/test_detours.py holds them equal); the torch version stays for calibrated booms,
-whose chains the kernels do not know.
+(tests/test_detours.py holds them equal, on the nominal and a calibrated rig); the torch version
+stays as that reference, and for a boom whose chain the kernels do not know
+(:meth:`pipeline.geometry.compiled_rig.CompiledBoom.for_boom` answers ``None``).
 """
 
 from __future__ import annotations
@@ -64,11 +65,11 @@ def _clearance(qa, qb, chain_a, base_a, frame_a, along_a, ra, chain_b, base_b, f
     for i in range(qb.shape[0]):
         if not np.isfinite(qb[i]):
             return -np.inf
-    rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool = chain_a
-    rig_frames_into(qa, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, base_a, Fa)
+    rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, errors = chain_a
+    rig_frames_into(qa, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, errors, base_a, Fa)
     _ends(Fa, frame_a, along_a, Ea)
-    rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool = chain_b
-    rig_frames_into(qb, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, base_b, Fb)
+    rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, errors = chain_b
+    rig_frames_into(qb, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, errors, base_b, Fb)
     _ends(Fb, frame_b, along_b, Eb)
     best = capsule_min(Ea, Eb, ra, rb, bound)
     if best != best:

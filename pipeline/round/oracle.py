@@ -82,8 +82,8 @@ class KinematicOracle:
         # action's sweep is fixed by its boom, kind and nodes (a move's motion never changes once looked at)
         self.sweep_pairs: dict[tuple, tuple[float, float]] = {}
         self._stacked: list[dict | None] = [None for _ in self.joints]
-        # the advancement compiled where both booms have a nominal chain (pipeline.round.compiled_oracle);
-        # False keeps it on torch (the reference the kernel is tested against, and calibrated booms' path)
+        # the advancement compiled where both booms have a kernel (pipeline.round.compiled_oracle; calibrated too);
+        # False keeps it on torch (the reference the kernel is tested against, and the path of a boom without a kernel)
         self.compiled = True
 
     def set_detour(self, b: int, u: int, v: int, path: Path) -> None:
