@@ -31,12 +31,35 @@ D = torch.float64
 
 
 @pytest.fixture(scope="module")
-def demo(safety):
+def demo_inputs(safety):
     rig = build_rig("twin", load_group_file("tunnel", "horseshoe"), load_group_file("safety", "paper"))
     plan = demo_face(safety=safety)
     reach = reach_table(plan, rig, rig_solvers(rig, lambda b: None, HybridSettings()), "hybrid")
+    return rig, plan, reach
+
+
+@pytest.fixture(scope="module")
+def demo(demo_inputs):
+    rig, plan, reach = demo_inputs
     motions = rig_motions(load_group_file("motion", "jumbo8"), rig.booms)
     inst, oracle, _ = round_instance(rig, plan, reach, motions, RoundSettings())
+    return rig, inst, oracle
+
+
+@pytest.fixture(scope="module")
+def calibrated_demo(demo_inputs):
+    """The demo round's instance on `twin` with boom L calibrated (error twists of 0.5 mm and mrad):
+    its nodes are the nominal solutions, which is all an oracle-against-oracle test needs."""
+    from pipeline.assembly.rig import rig_booms, rig_spec
+    from pipeline.calibration.error_model import BoomWithErrors, ErrorLevel, draw_errors
+
+    _, plan, reach = demo_inputs
+    booms = dict(rig_booms(rig_spec("twin")))
+    booms["L"] = BoomWithErrors(booms["L"], draw_errors(booms["L"], ErrorLevel(0.5, 0.5, 20.0), seed=0))
+    rig = build_rig("twin", load_group_file("tunnel", "horseshoe"), load_group_file("safety", "paper"), booms=booms)
+    motions = rig_motions(load_group_file("motion", "jumbo8"), rig.booms)
+    inst, oracle, _ = round_instance(rig, plan, reach, motions, RoundSettings())
+    assert rig.booms[0].kernel is not None and rig.booms[0].kernel.chain[-1].shape[0] > 0  # the calibrated chain
     return rig, inst, oracle
 
 
@@ -258,12 +281,14 @@ def test_failed_moves_are_marked_move_unclear_in_the_trajectory(demo):
     assert n_unclear >= i_col - i_ret - 1
 
 
-def test_compiled_advancement_is_the_torch_one_to_the_last_bit(demo):
+@pytest.mark.parametrize("which", ["demo", "calibrated_demo"])
+def test_compiled_advancement_is_the_torch_one_to_the_last_bit(which, request):
     """The oracle's advancement compiled (pipeline/round/compiled_oracle.py) against its torch version on
-    the same pairs of segments: standing, straight moves, park legs and a detour, both boom orders. The
-    first conflicts, least clearances and evaluation counts are equal, not close: every operation is
-    the same in the same order."""
-    rig, inst, oracle = demo
+    the same pairs of segments: standing, straight moves, park legs and a detour, both boom orders, on the
+    nominal rig and with one boom calibrated (the kernel must carry its error transforms). The first
+    conflicts, least clearances and evaluation counts are equal, not close: every operation is the same
+    in the same order."""
+    rig, inst, oracle = request.getfixturevalue(which)
     b, u, v = _unclear_move(rig, inst, oracle)
     routes = [[] for _ in range(inst.n_booms)]
     routes[b] = [u, v]
