@@ -12,7 +12,6 @@ published together, and logs both to MLflow (run ``distill-<name>``). The method
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import shutil
 import tempfile
@@ -26,7 +25,7 @@ from omegaconf import DictConfig
 from pipeline.assembly.build import build_safety, hole_sampling
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import InputError
-from pipeline.core.io import publish, require_writable, write_json
+from pipeline.core.io import publish, publish_lock, require_writable, write_json
 from pipeline.core.stage import run_stage
 from pipeline.data.holes import sample_holes
 from pipeline.learning.distillation import DistillSettings, distil, imitation_metrics
@@ -72,7 +71,7 @@ def run(cfg: DictConfig) -> dict:
             write_json(final, summary)
             mlrun.log_artifact(ckpt)
             mlrun.log_artifact(summary)
-            publish(files, _lock(models, s.name))
+            publish(files, publish_lock(models, s.name))
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
     log.info("distilled %s (%d x %d %s) from %s in %.0f s: joints within %.4f of their ranges (p95), its own "
@@ -90,12 +89,6 @@ def _refuse_to_replace_another_network(path: Path) -> None:
     if "distill" not in (meta.get("config") or {}):
         raise InputError(f"{path}: holds a network that was not distilled (method {meta.get('method')!r}); "
                          f"the student would replace it: choose another distill.name")
-
-
-def _lock(models: Path, name: str) -> Path:
-    """Keyed by the destination, in the temporary folder (as ``train`` keys its own): no lock file among the models."""
-    key = hashlib.sha1(str(models.resolve()).encode()).hexdigest()[:16]
-    return Path(tempfile.gettempdir()) / "boom-ik-locks" / f"{key}-{name}.lock"
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")

@@ -17,7 +17,6 @@ training gives. The folder is removed when the training's files are published.
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import shutil
 import tempfile
@@ -32,7 +31,7 @@ from omegaconf import DictConfig, OmegaConf
 from pipeline.assembly.build import build_safety, hole_sampling
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import resolve_device
-from pipeline.core.io import publish, require_writable, write_csv, write_json
+from pipeline.core.io import publish, publish_lock, require_writable, write_csv, write_json
 from pipeline.core.settings import RuntimeSettings
 from pipeline.core.stage import run_stage
 from pipeline.data.tables import POSE_COLUMNS
@@ -165,16 +164,8 @@ def save_outputs(model: IKNet, history: list[dict], final: dict, models_dir: Pat
         mlrun.log_summary({"loss": kept_rec["loss"]}, kept, model_id, inputs.get("training"))
         mlrun.log_summary({k: v for k, v in final.items() if not k.startswith("val_")}, kept, model_id)
         mlrun.log_artifact(ckpt)
-    publish(files, lock_path(models_dir, name))
+    publish(files, publish_lock(models_dir, name))
     shutil.rmtree(run_dir, ignore_errors=True)
-
-
-def lock_path(models_dir: Path, name: str) -> Path:
-    """The lock that serialises publishing ``name`` into ``models_dir``: in the temporary folder, keyed by
-    the destination, so no lock file is left among the models (removing it after use would not be
-    safe: a waiting process may hold it open)."""
-    key = hashlib.sha1(str(models_dir.resolve()).encode()).hexdigest()[:16]
-    return Path(tempfile.gettempdir()) / "boom-ik-locks" / f"{key}-{name}.lock"
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")

@@ -494,3 +494,21 @@ def test_a_swallowed_signal_stops_a_set_before_it_is_published(tmp_path):
     assert out.read_text() == "the previous set\n" and new.read_text() == "new set\n"
     publish({new: out}, tmp_path / "out.lock")  # no signal pending: published
     assert out.read_text() == "new set\n"
+
+
+def test_one_destination_has_one_publish_lock_however_it_is_spelled(tmp_path, monkeypatch):
+    """train and distill publish into a models folder under :func:`publish_lock`: the same folder, named
+    relative, absolute or through a link, gets the same lock; another folder or name another; never a file
+    among the outputs."""
+    from pipeline.core.io import publish_lock
+
+    models, other = tmp_path / "models", tmp_path / "other"
+    models.mkdir()
+    other.mkdir()
+    (tmp_path / "link").symlink_to(models)
+    monkeypatch.chdir(tmp_path)
+    spellings = {publish_lock(p, "cuikm") for p in (models, Path("models"), Path("link"), Path("./models/../models"))}
+    assert len(spellings) == 1
+    (lock,) = spellings
+    assert lock != publish_lock(other, "cuikm") and lock != publish_lock(models, "uikm")
+    assert not lock.resolve().is_relative_to(models.resolve())

@@ -128,6 +128,14 @@ def publish(files: dict[Path, Path], lock: Path, remove: Iterable[Path] = ()) ->
             Path(old).unlink(missing_ok=True)
 
 
+def publish_lock(folder: Path, name: str) -> Path:
+    """The lock that serialises publishing ``name`` into ``folder`` (:func:`publish`): in the temporary
+    folder, keyed by the destination, so no lock file is left among the outputs (removing it after use
+    would not be safe: a waiting process may hold it open)."""
+    key = hashlib.sha1(str(folder.resolve()).encode()).hexdigest()[:16]
+    return Path(tempfile.gettempdir()) / "boom-ik-locks" / f"{key}-{name}.lock"
+
+
 # ---------------------------------------------------------------------------------------------
 # Temporary files that name their writer, so a later run can remove those of dead processes
 

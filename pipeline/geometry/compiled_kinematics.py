@@ -41,7 +41,7 @@ NO_ERRORS = np.zeros((0, 4, 4))  # the nominal chain's error transforms: none
 
 def chain_and_errors(boom: Boom) -> tuple[Boom, np.ndarray] | None:
     """What the rig kernels compute for ``boom``: its nominal D-H boom and the constant rigid transforms
-    ``E (R, 4, 4)`` that premultiply its links (:func:`calibrated_frames_into`), :data:`NO_ERRORS` for the
+    ``E (R, 4, 4)`` that premultiply its links (:func:`frames_into`), :data:`NO_ERRORS` for the
     nominal chain; None for a chain of any other kind. A calibrated boom is read through the interface
     of :class:`~pipeline.calibration.error_model.BoomWithErrors` (``nominal``, ``error_transforms()``),
     which lives above this layer; :meth:`pipeline.geometry.compiled_rig.CompiledBoom.for_boom` checks
@@ -208,34 +208,30 @@ def _tool_frame(last, tool, out):
 
 
 @njit(cache=True)
-def frames_into(q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, F):
-    """Every frame of the chain at joints ``q (n,)`` into ``F (R + 2, 4, 4)``: the base, one per
-    D-H row, the tool (as :meth:`Boom.frames`)."""
-    R = rows.shape[0]
-    _identity(F[0])
-    for k in range(R):
-        _times_link(F[k], F[k + 1], _link(k, q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param))
-    _tool_frame(F[R], tool, F[R + 1])
+def _error_times_link(E, link):
+    """``E @ L`` of a rigid error transform and a link (last rows 0, 0, 0, 1), as :func:`_link` gives a link."""
+    l00, l01, l02, l03, l10, l11, l12, l13, l20, l21, l22, l23 = link
+    return (E[0, 0] * l00 + E[0, 1] * l10 + E[0, 2] * l20, E[0, 0] * l01 + E[0, 1] * l11 + E[0, 2] * l21,
+            E[0, 0] * l02 + E[0, 1] * l12 + E[0, 2] * l22, E[0, 0] * l03 + E[0, 1] * l13 + E[0, 2] * l23 + E[0, 3],
+            E[1, 0] * l00 + E[1, 1] * l10 + E[1, 2] * l20, E[1, 0] * l01 + E[1, 1] * l11 + E[1, 2] * l21,
+            E[1, 0] * l02 + E[1, 1] * l12 + E[1, 2] * l22, E[1, 0] * l03 + E[1, 1] * l13 + E[1, 2] * l23 + E[1, 3],
+            E[2, 0] * l00 + E[2, 1] * l10 + E[2, 2] * l20, E[2, 0] * l01 + E[2, 1] * l11 + E[2, 2] * l21,
+            E[2, 0] * l02 + E[2, 1] * l12 + E[2, 2] * l22, E[2, 0] * l03 + E[2, 1] * l13 + E[2, 2] * l23 + E[2, 3])
 
 
 @njit(cache=True)
-def calibrated_frames_into(q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, errors, F):
-    """:func:`frames_into` of a chain whose links are ``E_k @ L_k``: a calibrated boom's
-    (:class:`pipeline.calibration.error_model.BoomWithErrors`), ``errors (R, 4, 4)`` its error
-    transforms, rigid (last row 0, 0, 0, 1)."""
+def frames_into(q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, errors, F):
+    """Every frame of the chain at joints ``q (n,)`` into ``F (R + 2, 4, 4)``: the base, one per
+    D-H row, the tool (as :meth:`Boom.frames`). ``errors``: :data:`NO_ERRORS` for the nominal chain, or a
+    calibrated boom's error transforms ``(R, 4, 4)``, rigid, whose links are ``E_k @ L_k``
+    (:class:`pipeline.calibration.error_model.BoomWithErrors`)."""
     R = rows.shape[0]
     _identity(F[0])
     for k in range(R):
-        l00, l01, l02, l03, l10, l11, l12, l13, l20, l21, l22, l23 = _link(
-            k, q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param)
-        E = errors[k]
-        e = (E[0, 0] * l00 + E[0, 1] * l10 + E[0, 2] * l20, E[0, 0] * l01 + E[0, 1] * l11 + E[0, 2] * l21,
-             E[0, 0] * l02 + E[0, 1] * l12 + E[0, 2] * l22, E[0, 0] * l03 + E[0, 1] * l13 + E[0, 2] * l23 + E[0, 3],
-             E[1, 0] * l00 + E[1, 1] * l10 + E[1, 2] * l20, E[1, 0] * l01 + E[1, 1] * l11 + E[1, 2] * l21,
-             E[1, 0] * l02 + E[1, 1] * l12 + E[1, 2] * l22, E[1, 0] * l03 + E[1, 1] * l13 + E[1, 2] * l23 + E[1, 3],
-             E[2, 0] * l00 + E[2, 1] * l10 + E[2, 2] * l20, E[2, 0] * l01 + E[2, 1] * l11 + E[2, 2] * l21,
-             E[2, 0] * l02 + E[2, 1] * l12 + E[2, 2] * l22, E[2, 0] * l03 + E[2, 1] * l13 + E[2, 2] * l23 + E[2, 3])
-        _times_link(F[k], F[k + 1], e)
+        link = _link(k, q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param)
+        if errors.shape[0] > 0:
+            link = _error_times_link(errors[k], link)
+        _times_link(F[k], F[k + 1], link)
     _tool_frame(F[R], tool, F[R + 1])
 
 
@@ -492,7 +488,7 @@ def batch_pose6_jacobian(Q, rows, cos_alpha, sin_alpha, modified, joint_row, joi
     Fs = np.empty((B, rows.shape[0] + 2, 4, 4))
     pose, J = np.empty((B, 6)), np.empty((B, 6, n))
     for b in range(B):
-        frames_into(Q[b], rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, Fs[b])
+        frames_into(Q[b], rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, NO_ERRORS, Fs[b])
         pose6_jacobian_into(Fs[b], depth, axis_frame, along_x, revolute, pose[b], J[b])
     return Fs, pose, J
 

@@ -35,7 +35,6 @@ from pipeline.geometry.compiled_kinematics import (
     ChainArrays,
     SafetyArrays,
     _ends,
-    calibrated_frames_into,
     chain_and_errors,
     clearances_into,
     frames_into,
@@ -46,12 +45,9 @@ from pipeline.geometry.kinematics import Boom
 
 @njit(cache=True)
 def rig_frames_into(q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, errors, base, F):
-    """:func:`frames_into` (:func:`calibrated_frames_into` where ``errors`` has a transform per row),
-    then every origin moved by ``base (3,)``: the frames in the rig frame."""
-    if errors.shape[0] == 0:
-        frames_into(q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, F)
-    else:
-        calibrated_frames_into(q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, errors, F)
+    """:func:`frames_into` (calibrated where ``errors`` has a transform per row), then every origin moved
+    by ``base (3,)``: the frames in the rig frame."""
+    frames_into(q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, errors, F)
     for f in range(F.shape[0]):
         for i in range(3):
             F[f, i, 3] = F[f, i, 3] + base[i]

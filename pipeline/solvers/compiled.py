@@ -36,6 +36,7 @@ from numba import njit, prange
 from pipeline.core.errors import InputError
 from pipeline.geometry.collision import SAFETY_KINDS
 from pipeline.geometry.compiled_kinematics import (
+    NO_ERRORS,
     ChainArrays,
     SafetyArrays,
     clearance_jacobians_into,
@@ -144,7 +145,7 @@ def _frames(x, sp, ch, q, F):
     free = sp[0]
     for i in range(free.shape[0]):
         q[free[i]] = x[i]
-    frames_into(q, ch[0], ch[1], ch[2], ch[3], ch[4], ch[5], ch[6], F)
+    frames_into(q, ch[0], ch[1], ch[2], ch[3], ch[4], ch[5], ch[6], NO_ERRORS, F)
 
 
 @njit(cache=True)

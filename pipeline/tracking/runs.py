@@ -152,23 +152,16 @@ def waiting_on_busy_store(call, what: str, *args, **kwargs):
                 raise
             waited = time.monotonic() - start
             if waited >= _BUSY["timeout_s"]:
-                raise _busy(waited, what) from None
+                raise StoreBusy(
+                    f"tracking.uri = {_BUSY['uri']}: the MLflow store stayed locked by another process for "
+                    f"{waited:.0f} s while {what} (tracking.busy_timeout_s = {_BUSY['timeout_s']:g}); wait for the "
+                    "other run to finish or resume it, raise tracking.busy_timeout_s, or log to another store "
+                    "(tracking.uri=...)") from None
             if not warned:
-                _warn_busy()
+                log.warning("MLflow store %s is locked by another process; waiting up to %g s "
+                            "(tracking.busy_timeout_s)", _BUSY["uri"], _BUSY["timeout_s"])
                 warned = True
             time.sleep(min(1.0, max(0.0, _BUSY["timeout_s"] - waited)))
-
-
-def _busy(waited: float, what: str) -> StoreBusy:
-    return StoreBusy(
-        f"tracking.uri = {_BUSY['uri']}: the MLflow store stayed locked by another process for {waited:.0f} s "
-        f"while {what} (tracking.busy_timeout_s = {_BUSY['timeout_s']:g}); wait for the other run to finish or "
-        "resume it, raise tracking.busy_timeout_s, or log to another store (tracking.uri=...)")
-
-
-def _warn_busy() -> None:
-    log.warning("MLflow store %s is locked by another process; waiting up to %g s (tracking.busy_timeout_s)",
-                _BUSY["uri"], _BUSY["timeout_s"])
 
 
 def wait_for_write_lock(settings: TrackingSettings) -> None:
