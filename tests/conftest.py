@@ -23,6 +23,18 @@ _LONGEST_FIRST = ("test_sweeps_dvc.py", "test_schedule.py", "test_reliability.py
                   "test_check_execution.py")
 
 
+def pytest_configure(config):
+    """Two workers on two cores: the processes they start (stages, scripts, sweep jobs) and the workers'
+    own BLAS and OpenMP pools get one thread each, as the workers' torch and numba do (below). Set in
+    the controller before it starts the workers, so they and their children inherit it; a stage that
+    sets its own threads (``runtime.threads``) still does, so the tests that start one pass
+    ``runtime.threads=1`` too. A thread pool on a busy core spins while it waits for its partner."""
+    workers = getattr(config.option, "numprocesses", None)
+    if _WORKERS > 1 or workers not in (None, 0, 1):
+        for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ.setdefault(var, "1")
+
+
 def pytest_collection_modifyitems(config, items):
     rank = {name: i for i, name in enumerate(_LONGEST_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the rest keep their order

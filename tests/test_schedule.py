@@ -179,7 +179,7 @@ def test_a_signal_leaves_no_half_written_output_and_no_running_run(face_plan, si
            # machine (with the defaults, a fast run once published its set before the signal came). Each routing
            # solve keeps its count of checks: OR-Tools holds a signal until its solve returns (seconds here)
            "round.solution_limit=1000000", "round.stop_ratio=1.0",
-           f"plan={plan}", f"hydra.run.dir={tmp}/hydra"]
+           f"plan={plan}", f"hydra.run.dir={tmp}/hydra", "runtime.threads=1"]  # the other worker has the other core
     proc = subprocess.Popen(cmd, cwd=PROJECT_ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             preexec_fn=_ignore_sigint)
     deadline = time.monotonic() + 180
