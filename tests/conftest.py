@@ -28,7 +28,8 @@ def pytest_configure(config):
     own BLAS and OpenMP pools get one thread each, as the workers' torch and numba do (below). Set in
     the controller before it starts the workers, so they and their children inherit it; a stage that
     sets its own threads (``runtime.threads``) still does, so the tests that start one pass
-    ``runtime.threads=1`` too. A thread pool on a busy core spins while it waits for its partner."""
+    ``runtime.threads=1`` too. Five or six threads on two cores only wait on each other (measured: a few
+    percent of those tests' CPU, docs/benchmarks.md, "The test suite")."""
     workers = getattr(config.option, "numprocesses", None)
     if _WORKERS > 1 or workers not in (None, 0, 1):
         for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
