@@ -34,6 +34,15 @@ def test_the_ui_serves_the_configured_store(tmp_path):
     assert cmd[cmd.index("--port") + 1] == "5123" and cmd[cmd.index("--host") + 1] == "127.0.0.1"
 
 
+def test_the_ui_starts_without_mlflow_s_job_execution_unless_the_environment_asks():
+    from pipeline.tracking.dashboard import ui_environment
+
+    env = ui_environment({"PATH": "/bin"})
+    assert env == {"PATH": "/bin", "MLFLOW_SERVER_ENABLE_JOB_EXECUTION": "false"}
+    asked = {"MLFLOW_SERVER_ENABLE_JOB_EXECUTION": "true"}
+    assert ui_environment(asked) == asked
+
+
 @pytest.mark.parametrize("port", [0, 70000, "x", True])
 def test_a_bad_port_is_named(tmp_path, port):
     from pipeline.core.errors import ConfigError
@@ -103,6 +112,8 @@ def test_ctrl_c_stops_the_dashboard_and_its_ui_without_a_traceback(tmp_path, whe
     import signal
     import subprocess
 
+    import psutil
+
     cmd = [sys.executable, "-m", "pipeline.dashboard", f"tracking.uri=sqlite:///{tmp_path}/d.db",
            f"tracking.artifact_root={tmp_path}/art", "tracking.ui_port=5397", f"hydra.run.dir={tmp_path}/h"]
     proc = subprocess.Popen(cmd, cwd=SCRIPT.parents[1], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
@@ -115,8 +126,11 @@ def test_ctrl_c_stops_the_dashboard_and_its_ui_without_a_traceback(tmp_path, whe
         seen.append(line)
     ui = [int(p) for p in subprocess.run(["pgrep", "-f", "5397"], capture_output=True, text=True).stdout.split()
           if int(p) != proc.pid]
+    tree = [" ".join(c.cmdline()) for c in psutil.Process(proc.pid).children(recursive=True)]
     proc.send_signal(signal.SIGINT)
     out = "".join(seen) + proc.communicate(timeout=60)[0]
+    if when == "serving":  # the UI and its web server; MLflow's job execution stays off (no runner, no consumers)
+        assert len(tree) == 2 and not any("jobs" in c or "huey" in c for c in tree), tree
     assert proc.returncode == 0, out
     assert "Traceback" not in out and "stopping" in out
     for pid in ui:  # the UI and its web server are gone too
