@@ -93,7 +93,12 @@ def test_every_group_option_composes_and_validates(option):
 
         assert load_boom(option.split("=")[1]).n_joints >= 6
         return
-    cfg = compose([option])
+    overrides = [option]
+    if option == "tunnel=profile":  # a profile is a file: without one it is refused, naming the setting
+        with pytest.raises(ConfigError, match=r"tunnel.file = None: tunnel=profile needs the profile CSV"):
+            check_all_groups(compose(overrides))
+        overrides.append("tunnel.file=conf/tunnel/profiles/d_5x5.csv")
+    cfg = compose(overrides)
     OmegaConf.resolve(cfg)
     check_all_groups(cfg)
 

@@ -10,14 +10,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 
-from pipeline.assembly.build import load_boom, safety_settings
+from pipeline.assembly.build import build_tunnel, load_boom, safety_settings
 from pipeline.core.config import as_dict, load_group_file
 from pipeline.core.errors import ConfigError
 from pipeline.geometry.collision import SafetyDistances
 from pipeline.geometry.kinematics import Boom
 from pipeline.geometry.rig import Rig, RigSpec, parse_rig, rig_file
 from pipeline.geometry.rig import build_rig as place_booms
-from pipeline.geometry.tunnel import Horseshoe
+from pipeline.geometry.tunnel import Tunnel
 
 # (setting, model file, nominal boom of each kind) -> the calibrated Boom; errors name the setting. The
 # stage passes pipeline.calibration.model_file.model_setting, which this layer may not import.
@@ -125,7 +125,7 @@ def build_rig(rig_cfg, tunnel_cfg, safety_cfg, booms: Mapping[str, Boom] | None 
     if booms is None:
         booms = rig_booms(spec, boom_cfg)
     distances, n, exact = safety_settings(safety_cfg)
-    return place_booms(spec, booms, Horseshoe.from_config(as_dict(tunnel_cfg)), distances, n, exact)
+    return place_booms(spec, booms, build_tunnel(tunnel_cfg), distances, n, exact)
 
 
 def composed_rig(cfg, load_model: ModelLoader | None = None) -> Rig:
@@ -138,7 +138,7 @@ def composed_rig(cfg, load_model: ModelLoader | None = None) -> Rig:
     return build_rig(spec, tunnel, cfg.safety, booms)
 
 
-def load_rig(name: str, tunnel: Horseshoe, distances: SafetyDistances, points_per_capsule: int = 16,
+def load_rig(name: str, tunnel: Tunnel, distances: SafetyDistances, points_per_capsule: int = 16,
              booms: Mapping[str, Boom] | None = None, exact: bool = True) -> Rig:
     """The rig ``conf/rig/<name>.yaml`` in ``tunnel`` with the given safety distances (a safety model's
     ``safety.tunnel, safety.distances, safety.points_per_capsule``, ``safety.exact``), its booms ``booms`` or their

@@ -16,7 +16,7 @@ import torch
 
 from pipeline.core.errors import ConfigError
 from pipeline.geometry.collision import SafetyModel
-from pipeline.geometry.tunnel import Horseshoe
+from pipeline.geometry.tunnel import Tunnel
 
 DTYPE = torch.float64
 
@@ -43,16 +43,13 @@ def _batch(n: int) -> int:
     return max(256, int(1.6 * n))
 
 
-def sample_collars(n: int, tunnel: Horseshoe, sampling: HoleSampling, gen: torch.Generator) -> torch.Tensor:
+def sample_collars(n: int, tunnel: Tunnel, sampling: HoleSampling, gen: torch.Generator) -> torch.Tensor:
     """``(n, 3)`` collars: (y, z) uniform in the profile less the inset, x uniform in face_x."""
-    r, inset = tunnel.half_width - sampling.inset, sampling.inset
-    if r <= 0 or tunnel.crown - inset <= inset:
-        raise ConfigError(f"holes.inset = {inset!r} leaves no area inside the tunnel profile")
+    inset = sampling.inset
     out, have = [], 0
     while have < n:
         m = _batch(n - have)
-        y = (torch.rand(m, generator=gen, dtype=DTYPE) * 2 - 1) * r
-        z = inset + torch.rand(m, generator=gen, dtype=DTYPE) * (tunnel.crown - 2 * inset)
+        y, z = tunnel.sample_yz(m, inset, gen)
         keep = tunnel.contains(y, z, inset)
         out.append(torch.stack([y[keep], z[keep]], dim=-1))
         have += int(keep.sum())
@@ -154,7 +151,7 @@ def sample_joints(n: int, boom, seed: int, box: Mapping | None = None) -> torch.
     return lo + torch.rand(n, boom.n_joints, generator=gen, dtype=DTYPE) * (hi - lo)
 
 
-def in_face_window(pose: torch.Tensor, tunnel: Horseshoe, x_range=(5.5, 7.5), max_angle_deg: float = 30.0):
+def in_face_window(pose: torch.Tensor, tunnel: Tunnel, x_range=(5.5, 7.5), max_angle_deg: float = 30.0):
     """Boolean ``(n,)``: the collar lies in the face window (x in ``x_range``, inside the profile) and
     the hole points within ``max_angle_deg`` of +x (the spec's measure of a face-like pose)."""
     p, d = pose[:, :3], pose[:, 3:] - pose[:, :3]

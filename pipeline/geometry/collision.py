@@ -180,12 +180,18 @@ class SafetyModel:
                                 crossing(y0, dy, 0.0), projection(r), projection(-r)], dim=-1)
 
     def _tunnel(self, ends: torch.Tensor, radius: torch.Tensor, skip: torch.Tensor):
-        """Clearance of every checked point to each surface ``(..., 3, bodies * points)``, the points
-        ``(..., bodies * points, 3)`` and where each lies between its body's ends ``(..., bodies * points)``.
-        A body's last ``skip`` metres are not checked (the feed's front works at the face)."""
+        """Clearance to each surface ``(..., 3, bodies * points)`` of every checked point and where each
+        lies between its body's ends ``(..., 3, bodies * points)``. A body's last ``skip`` metres are not
+        checked (the feed's front works at the face). A horseshoe is checked at points along each axis
+        (the samples, then the exact candidates); a profile measures each whole axis at once
+        (:meth:`Profile.capsule_distances`), one "point" per body and surface."""
         c = self._c(ends.dtype, ends.device)
         start, axis = ends[..., 0, :], ends[..., 1, :] - ends[..., 0, :]
         keep = torch.where(skip > 0, (1.0 - skip / safe_norm(axis).clamp_min(1e-12)).clamp_min(0.0), 1.0)
+        if self.tunnel.kind == "profile":
+            dist, frac = self.tunnel.capsule_distances(start, keep.unsqueeze(-1) * axis)  # (..., bodies, 3)
+            clear = dist - radius[:, None] - c["surface"]
+            return clear.transpose(-1, -2), (frac * keep.unsqueeze(-1)).transpose(-1, -2)
         u = c["t"].expand(*start.shape[:-1], -1)
         if self.exact:
             u = torch.cat([u, self._fractions(start, keep.unsqueeze(-1) * axis)], dim=-1)
@@ -193,7 +199,13 @@ class SafetyModel:
         pts = start.unsqueeze(-2) + frac.unsqueeze(-1) * axis.unsqueeze(-2)
         dist = self.tunnel.surface_distances(pts[..., 1], pts[..., 2])
         clear = torch.stack([dist[k] for k in SURFACES], dim=-3) - radius[:, None] - c["surface"][:, None, None]
-        return clear.flatten(-2), pts.flatten(-3, -2), frac.flatten(-2)
+        clear = clear.flatten(-2)
+        return clear, frac.flatten(-2).unsqueeze(-2).expand_as(clear)
+
+    @property
+    def points_per_body(self) -> int:
+        """Checked points per capsule in :meth:`_tunnel`'s layout (a profile measures each axis whole)."""
+        return 1 if self.tunnel.kind == "profile" else self.n_points
 
     def _self(self, ends: torch.Tensor):
         """Self clearance (min over the listed pairs), and the minimising pair's closest-point
@@ -239,16 +251,17 @@ class SafetyModel:
         (or the unit vector between the closest points) times that point's geometric Jacobian. The
         feed's checked length is fixed (its length is), so the truncation adds no term."""
         boom, c = self.boom, self._c(frames.dtype, frames.device)
-        batch, nb, P = frames.shape[:-3], len(self._names), self.n_points
+        batch, nb, P = frames.shape[:-3], len(self._names), self.points_per_body
         ends = self.body_ends(frames)
-        clear, pts, frac = self._tunnel(ends, c["radius"], c["skip"])
+        clear, frac = self._tunnel(ends, c["radius"], c["skip"])
         values, i = clear.min(dim=-1)  # (..., 3 surfaces)
         jac = boom.points_jacobian(frames, ends.flatten(-3, -2), c["frames"]).reshape(*batch, nb, 2, 3, -1)
         body = (i // P)[..., None, None, None].expand(*i.shape, 2, 3, jac.shape[-1])
         j_ends = torch.gather(jac, -4, body)  # (..., 3 surfaces, 2, 3, n)
-        a = torch.gather(frac, -1, i)[..., None, None]
-        j_point = (1 - a) * j_ends[..., 0, :, :] + a * j_ends[..., 1, :, :]
-        p = torch.gather(pts, -2, i.unsqueeze(-1).expand(*i.shape, 3))
+        a = torch.gather(frac, -1, i.unsqueeze(-1))  # (..., 3, 1)
+        j_point = (1 - a[..., None]) * j_ends[..., 0, :, :] + a[..., None] * j_ends[..., 1, :, :]
+        e = torch.gather(ends, -3, (i // P)[..., None, None].expand(*i.shape, 2, 3))  # (..., 3, 2, 3)
+        p = e[..., 0, :] + a * (e[..., 1, :] - e[..., 0, :])
         normals = self.tunnel.surface_gradients(p[..., 1], p[..., 2])
         gy = torch.stack([normals[k][0][..., s] for s, k in enumerate(SURFACES)], dim=-1)
         gz = torch.stack([normals[k][1][..., s] for s, k in enumerate(SURFACES)], dim=-1)

@@ -125,6 +125,7 @@ class SafetyArrays:
     wall_height: float
     t: np.ndarray  # (points,) sample fractions along each capsule, the same values as SafetyModel's
     exact: bool  # also the exact check's candidate points (SafetyModel.exact)
+    outline: np.ndarray  # (segments, 7) a profile's segments (Profile.outline_array); (0, 7): the horseshoe
 
     @classmethod
     def from_model(cls, safety: SafetyModel) -> SafetyArrays:
@@ -139,16 +140,17 @@ class SafetyArrays:
                            dtype=np.int64).reshape(-1, 2),
             d_self=float(safety.distances.self),
             surface=np.array([getattr(safety.distances, k) for k in SURFACES], dtype=np.float64),
-            half_width=float(safety.tunnel.half_width),
-            wall_height=float(safety.tunnel.wall_height),
+            half_width=float(getattr(safety.tunnel, "half_width", 0.0)),  # horseshoe only (outline empty)
+            wall_height=float(getattr(safety.tunnel, "wall_height", 0.0)),
             # torch's linspace, not numpy's: the two may differ in the last bit
             t=torch.linspace(0.0, 1.0, safety.points_per_capsule, dtype=torch.float64).numpy().copy(),
             exact=bool(safety.exact),
+            outline=(safety.tunnel.outline_array() if safety.tunnel.kind == "profile" else np.zeros((0, 7))),
         )
 
     def args(self) -> tuple:
         return (self.end_frame, self.end_along, self.radius, self.skip, self.pairs, self.d_self, self.surface,
-                self.half_width, self.wall_height, self.t, self.exact)
+                self.half_width, self.wall_height, self.t, self.exact, self.outline)
 
 
 assert SAFETY_KINDS == ("self", "wall", "ground", "arch")  # the kernels' clearance order
@@ -311,6 +313,121 @@ def surface_gradient(kind, y, z, r, h):
     return (-y / radial, -(z - h) / radial) if above else (corner_dy, corner_dz)
 
 
+# ---------------------------------------------------------------------------------------------- profile
+PROFILE_TIE = 1e-9  # as pipeline.geometry.profile.TIE
+# A tunnel of any cross-section (pipeline.geometry.profile.Profile): ``outline (segments, 7)`` holds each
+# segment's y0, z0, y1, z1, kind (0 wall, 1 ground, 2 arch) and inward normal; the same rule as the torch
+# model's, loop by loop.
+@njit(cache=True)
+def _inside(y, z, outline):
+    """Even-odd rule: (y, z) inside the profile's polygon."""
+    inside = False
+    for i in range(outline.shape[0]):
+        y0, z0, y1, z1 = outline[i, 0], outline[i, 1], outline[i, 2], outline[i, 3]
+        if (z0 > z) != (z1 > z) and y < y0 + (z - z0) * (y1 - y0) / (z1 - z0):
+            inside = not inside
+    return inside
+
+
+@njit(cache=True)
+def _to_segment(y, z, outline, i):
+    """Distance from (y, z) to segment ``i`` and its nearest point there."""
+    y0, z0 = outline[i, 0], outline[i, 1]
+    dy, dz = outline[i, 2] - y0, outline[i, 3] - z0
+    s = min(max(((y - y0) * dy + (z - z0) * dz) / (dy * dy + dz * dz), 0.0), 1.0)
+    py, pz = y0 + s * dy, z0 + s * dz
+    return math.sqrt((y - py) * (y - py) + (z - pz) * (z - pz)), py, pz
+
+
+@njit(cache=True)
+def _nearest_of_kinds(y, z, outline, D, SEG):
+    """Per kind, the distance from (y, z) to its nearest segment into ``D (3,)`` and that segment into
+    ``SEG (3,)``; returns the distance to the nearest segment of all."""
+    for k in range(3):
+        D[k] = np.inf
+        SEG[k] = -1
+    for i in range(outline.shape[0]):
+        k = int(outline[i, 4])
+        d, _, _ = _to_segment(y, z, outline, i)
+        if d < D[k]:
+            D[k], SEG[k] = d, i
+    return min(D[0], min(D[1], D[2]))
+
+
+@njit(cache=True)
+def _segment_distance_2d(ay, az, by, bz, outline, i):
+    """Clamped distance between segment (ay, az)-(by, bz) and outline segment ``i``, and where it is
+    reached along the first: the branches of :func:`segment_distance` in the plane."""
+    eps = 1e-12
+    d1y, d1z = by - ay, bz - az
+    d2y, d2z = outline[i, 2] - outline[i, 0], outline[i, 3] - outline[i, 1]
+    ry, rz = ay - outline[i, 0], az - outline[i, 1]
+    a = d1y * d1y + d1z * d1z
+    e = d2y * d2y + d2z * d2z
+    f = d2y * ry + d2z * rz
+    c = d1y * ry + d1z * rz
+    b = d1y * d2y + d1z * d2z
+    denom = a * e - b * b
+    a_ok, e_ok = a > eps, e > eps
+    a_safe = a if a_ok else 1.0
+    e_safe = e if e_ok else 1.0
+    s = (b * f - c * e) / denom if denom > 64 * EPS64 * a * e else 0.0
+    s = min(max(s, 0.0), 1.0)
+    t = (b * s + f) / e_safe
+    if t < 0:
+        s = min(max(-c / a_safe, 0.0), 1.0)
+    elif t > 1:
+        s = min(max((b - c) / a_safe, 0.0), 1.0)
+    t = min(max(t, 0.0), 1.0)
+    if a_ok and not e_ok:
+        s = min(max(-c / a_safe, 0.0), 1.0)
+    if not e_ok:
+        t = 0.0
+    if not a_ok and e_ok:
+        t = min(max(f / e_safe, 0.0), 1.0)
+    if not a_ok:
+        s = 0.0
+    gy = (ay + s * d1y) - (outline[i, 0] + t * d2y)
+    gz = (az + s * d1z) - (outline[i, 1] + t * d2z)
+    return math.sqrt(gy * gy + gz * gz), s
+
+
+@njit(cache=True)
+def profile_capsule_into(y0, z0, dy, dz, outline, V, FR, D, SEG):
+    """The distance of the axis ``(y0, z0) + u (dy, dz)`` to each kind into ``V (3,)`` and where along it
+    into ``FR (3,)`` (:meth:`Profile.capsule_distances`): the least segment-segment distance per kind,
+    then each end outside the profile at its negative depth for the kind nearest to it."""
+    for k in range(3):
+        V[k] = np.inf
+        FR[k] = 0.0
+    for i in range(outline.shape[0]):
+        k = int(outline[i, 4])
+        d, s = _segment_distance_2d(y0, z0, y0 + dy, z0 + dz, outline, i)
+        if d < V[k]:
+            V[k], FR[k] = d, s
+    for u in (0.0, 1.0):
+        y, z = y0 + u * dy, z0 + u * dz
+        if not _inside(y, z, outline):
+            nearest = _nearest_of_kinds(y, z, outline, D, SEG)
+            for k in range(3):
+                if D[k] <= nearest + PROFILE_TIE and -D[k] < V[k]:
+                    V[k], FR[k] = -D[k], u
+
+
+@njit(cache=True)
+def profile_gradient(kind, y, z, outline, D, SEG):
+    """``(d/dy, d/dz)`` of the point's signed distance to ``kind`` (:meth:`Profile.surface_gradients`):
+    the unit vector from the kind's nearest point, negative for a point outside whose nearest kind it
+    is; on a segment, that segment's inward normal."""
+    nearest = _nearest_of_kinds(y, z, outline, D, SEG)
+    i = SEG[kind]
+    d, py, pz = _to_segment(y, z, outline, i)
+    sign = -1.0 if (D[kind] <= nearest + PROFILE_TIE and not _inside(y, z, outline)) else 1.0
+    if d > 1e-12:
+        return sign * (y - py) / d, sign * (z - pz) / d
+    return sign * outline[i, 5], sign * outline[i, 6]
+
+
 # ---------------------------------------------------------------------------------------------- clearances
 EXACT_CANDIDATES = 6  # as pipeline.geometry.collision.EXACT_CANDIDATES
 
@@ -390,16 +507,20 @@ def segment_distance(p1, q1, p2, q2):
 
 @njit(cache=True)
 def clearances_into(F, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t,
-                    exact, out, arg, frac_at, E):
+                    exact, outline, out, arg, frac_at, E):
     """The four clearances (self, wall, ground, arch; m, negative = violated) of frames ``F`` into
     ``out (4,)``, as :meth:`SafetyModel.clearances_from_frames`. Also where each tunnel minimum lies:
     ``arg[k]`` the sample index (body * points + point) and ``frac_at[k]`` its fraction along its
     body; for self, ``arg`` holds the pair index and ``frac_at`` is unused (gradients need these).
     ``E (2 * bodies, 3)``: scratch, left holding the capsules' end points. ``exact``: after the samples
-    ``t``, the exact check's candidate points (:func:`exact_fractions_into`), as :class:`SafetyModel`."""
+    ``t``, the exact check's candidate points (:func:`exact_fractions_into`), as :class:`SafetyModel`.
+    A profile (``outline`` not empty) measures each axis whole (:func:`profile_capsule_into`): ``arg`` is
+    then the body."""
     S = t.shape[0]
-    nb, P = radius.shape[0], S + (EXACT_CANDIDATES if exact else 0)
+    profile = outline.shape[0] > 0
+    nb, P = radius.shape[0], 1 if profile else S + (EXACT_CANDIDATES if exact else 0)
     U = np.zeros(EXACT_CANDIDATES)
+    V, FR, D, SEG = np.empty(3), np.empty(3), np.empty(3), np.empty(3, dtype=np.int64)
     _ends(F, end_frame, end_along, E)
     for k in range(3):
         out[1 + k] = np.inf
@@ -409,6 +530,13 @@ def clearances_into(F, end_frame, end_along, radius, skip, pairs, d_self, surfac
         keep = 1.0
         if skip[b] > 0:
             keep = max(1.0 - skip[b] / max(math.sqrt(a0 * a0 + a1 * a1 + a2 * a2), 1e-12), 0.0)
+        if profile:
+            profile_capsule_into(s1, s2, keep * a1, keep * a2, outline, V, FR, D, SEG)
+            for k in range(3):
+                v = V[k] - radius[b] - surface[k]
+                if v < out[1 + k]:
+                    out[1 + k], arg[1 + k], frac_at[1 + k] = v, b, FR[k] * keep
+            continue
         if exact:
             exact_fractions_into(s1, s2, keep * a1, keep * a2, half_width, wall_height, U)
         for i in range(P):
@@ -432,17 +560,20 @@ def clearances_into(F, end_frame, end_along, radius, skip, pairs, d_self, surfac
 
 @njit(cache=True)
 def clearance_jacobians_into(F, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height,
-                             t, exact, axis_frame, along_x, revolute, moves, out, G):
+                             t, exact, outline, axis_frame, along_x, revolute, moves, out, G):
     """The clearances into ``out (4,)`` and their gradients with respect to the joints into ``G (4, n)``
     (:meth:`SafetyModel.clearances_with_jacobians`): a tunnel clearance's gradient is the surface
     normal at its minimising sample point times that point's Jacobian, self's the unit vector between
     the closest points times their relative Jacobian."""
-    nb, P, n = radius.shape[0], t.shape[0] + (EXACT_CANDIDATES if exact else 0), axis_frame.shape[0]
+    profile = outline.shape[0] > 0
+    nb, n = radius.shape[0], axis_frame.shape[0]
+    P = 1 if profile else t.shape[0] + (EXACT_CANDIDATES if exact else 0)
     arg = np.empty(4, dtype=np.int64)
     frac = np.empty(4)
     E = np.empty((2 * nb, 3))
+    D, SEG = np.empty(3), np.empty(3, dtype=np.int64)
     clearances_into(F, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t,
-                    exact, out, arg, frac, E)
+                    exact, outline, out, arg, frac, E)
     J0, J1 = np.empty((3, n)), np.empty((3, n))
     for k in range(1, 4):
         b = arg[k] // P
@@ -451,7 +582,10 @@ def clearance_jacobians_into(F, end_frame, end_along, radius, skip, pairs, d_sel
         fr = frac[k]
         y = E[2 * b, 1] + fr * (E[2 * b + 1, 1] - E[2 * b, 1])
         z = E[2 * b, 2] + fr * (E[2 * b + 1, 2] - E[2 * b, 2])
-        gy, gz = surface_gradient(k - 1, y, z, half_width, wall_height)
+        if profile:
+            gy, gz = profile_gradient(k - 1, y, z, outline, D, SEG)
+        else:
+            gy, gz = surface_gradient(k - 1, y, z, half_width, wall_height)
         for j in range(n):
             G[k, j] = (gy * ((1 - fr) * J0[1, j] + fr * J1[1, j])
                        + gz * ((1 - fr) * J0[2, j] + fr * J1[2, j]))
@@ -495,13 +629,13 @@ def batch_pose6_jacobian(Q, rows, cos_alpha, sin_alpha, modified, joint_row, joi
 
 @njit(cache=True)
 def batch_clearances(Fs, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t,
-                     exact, axis_frame, along_x, revolute, moves):
+                     exact, outline, axis_frame, along_x, revolute, moves):
     """Clearances ``(B, 4)`` and their gradients ``(B, 4, n)`` of frames ``Fs (B, R + 2, 4, 4)``."""
     B, n = Fs.shape[0], axis_frame.shape[0]
     C, G = np.empty((B, 4)), np.empty((B, 4, n))
     for b in range(B):
         clearance_jacobians_into(Fs[b], end_frame, end_along, radius, skip, pairs, d_self, surface, half_width,
-                                 wall_height, t, exact, axis_frame, along_x, revolute, moves, C[b], G[b])
+                                 wall_height, t, exact, outline, axis_frame, along_x, revolute, moves, C[b], G[b])
     return C, G
 
 

@@ -55,7 +55,7 @@ def rig_frames_into(q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_pa
 
 @njit(cache=True)
 def boom_clearances(Q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, errors, base, end_frame,
-                    end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t, exact):
+                    end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t, exact, outline):
     """The four clearances ``(K, 4)`` (:data:`SAFETY_KINDS` order) of joints ``Q (K, n)`` of a boom
     mounted at ``base``: the safety model on its rig-frame frames."""
     K = Q.shape[0]
@@ -66,7 +66,7 @@ def boom_clearances(Q, rows, cos_alpha, sin_alpha, modified, joint_row, joint_pa
     for k in range(K):
         rig_frames_into(Q[k], rows, cos_alpha, sin_alpha, modified, joint_row, joint_param, tool, errors, base, F)
         clearances_into(F, end_frame, end_along, radius, skip, pairs, d_self, surface, half_width, wall_height, t,
-                        exact, out[k], arg, frac, E)
+                        exact, outline, out[k], arg, frac, E)
     return out
 
 

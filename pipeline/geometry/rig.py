@@ -31,7 +31,7 @@ from pipeline.geometry.boom_pair import BoomPair
 from pipeline.geometry.collision import SAFETY_KINDS, SafetyDistances, SafetyModel
 from pipeline.geometry.compiled_rig import CompiledBoom, kernel_ready, pair_clearance
 from pipeline.geometry.kinematics import Boom
-from pipeline.geometry.tunnel import Horseshoe
+from pipeline.geometry.tunnel import Tunnel
 
 
 @dataclass(frozen=True)
@@ -159,7 +159,7 @@ class MountedBoom:
 class Rig:
     """The booms of a rig in one tunnel, with their pairwise boom-boom clearances."""
 
-    def __init__(self, spec: RigSpec, booms: Sequence[MountedBoom], tunnel: Horseshoe):
+    def __init__(self, spec: RigSpec, booms: Sequence[MountedBoom], tunnel: Tunnel):
         self.spec, self.name, self.d_boom, self.tunnel = spec, spec.name, spec.d_boom, tunnel
         self.booms = tuple(booms)
         self.names = [b.name for b in self.booms]
@@ -215,7 +215,7 @@ def _park(m: MountSettings, boom: Boom, where: str) -> torch.Tensor:
     return boom.with_locks(park)
 
 
-def build_rig(spec: RigSpec, booms: Mapping[str, Boom], tunnel: Horseshoe, distances: SafetyDistances,
+def build_rig(spec: RigSpec, booms: Mapping[str, Boom], tunnel: Tunnel, distances: SafetyDistances,
               points_per_capsule: int = 16, exact: bool = True) -> Rig:
     """Place each boom of ``spec`` (``booms``: boom name in the rig -> its :class:`Boom`, of the kind its
     ``boom:`` names) and check the rig: every base inside the tunnel profile, every park clear of the
@@ -232,8 +232,8 @@ def build_rig(spec: RigSpec, booms: Mapping[str, Boom], tunnel: Horseshoe, dista
             raise ConfigError(f"{where}.boom = {m.boom!r}: given a model of boom {boom.name!r}")
         x, y, z = m.base
         if not bool(tunnel.contains(torch.tensor(y, dtype=torch.float64), torch.tensor(z, dtype=torch.float64))):
-            raise ConfigError(f"{where}.base = {list(m.base)!r}: outside the tunnel profile (|y| <= "
-                              f"{tunnel.half_width} m at the walls, floor z = 0, crown z = {tunnel.crown} m)")
+            raise ConfigError(f"{where}.base = {list(m.base)!r}: outside the tunnel profile ({tunnel.describe()}: y in "
+                              f"{list(tunnel.y_range)} m, z in {list(tunnel.z_range)} m)")
         mounted = MountedBoom(m.name, boom, m.base, _park(m, boom, where),
                               SafetyModel(boom, tunnel, distances, points_per_capsule, exact))
         clear = mounted.clearances(mounted.park)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import torch
 
@@ -18,6 +19,30 @@ from pipeline.core.errors import ConfigError
 from pipeline.geometry.rotations import safe_norm
 
 SURFACES = ("wall", "ground", "arch")
+
+
+class Tunnel(Protocol):
+    """What the safety model, the hole sampler, the face designer and the figures ask of a drift: the
+    :class:`Horseshoe` here, or any cross-section (:class:`pipeline.geometry.profile.Profile`). ``kind``
+    picks how capsules are measured (:meth:`pipeline.geometry.collision.SafetyModel._tunnel`)."""
+
+    kind: str
+    y_range: tuple[float, float]
+    z_range: tuple[float, float]
+    width: float
+    crown: float
+
+    def surface_distances(self, y: torch.Tensor, z: torch.Tensor) -> dict[str, torch.Tensor]: ...
+
+    def surface_gradients(self, y: torch.Tensor, z: torch.Tensor) -> dict[str, tuple[torch.Tensor, torch.Tensor]]: ...
+
+    def contains(self, y: torch.Tensor, z: torch.Tensor, inset: float = 0.0) -> torch.Tensor: ...
+
+    def sample_yz(self, m: int, inset: float, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]: ...
+
+    def profile_polyline(self) -> tuple[list[float], list[float]]: ...
+
+    def describe(self) -> str: ...
 
 
 def _signed_hypot(u: torch.Tensor, v: torch.Tensor, sign_of: torch.Tensor) -> torch.Tensor:
@@ -28,6 +53,7 @@ def _signed_hypot(u: torch.Tensor, v: torch.Tensor, sign_of: torch.Tensor) -> to
 class Horseshoe:
     width: float = 5.0
     wall_height: float = 3.2
+    kind = "horseshoe"  # the other kind: pipeline.geometry.profile.Profile
 
     @classmethod
     def from_config(cls, cfg) -> Horseshoe:
@@ -42,6 +68,27 @@ class Horseshoe:
     @property
     def half_width(self) -> float:
         return 0.5 * self.width
+
+    @property
+    def y_range(self) -> tuple[float, float]:
+        return -self.half_width, self.half_width
+
+    @property
+    def z_range(self) -> tuple[float, float]:
+        return 0.0, self.crown
+
+    def describe(self) -> str:
+        return f"horseshoe {self.width:g} x {self.crown:g} m"
+
+    def sample_yz(self, m: int, inset: float, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+        """``m`` candidate points uniform in the profile's bounding box less ``inset`` (the caller keeps
+        those :meth:`contains` accepts)."""
+        r = self.half_width - inset
+        if r <= 0 or self.crown - inset <= inset:
+            raise ConfigError(f"holes.inset = {inset!r} leaves no area inside the tunnel profile")
+        y = (torch.rand(m, generator=gen, dtype=torch.float64) * 2 - 1) * r
+        z = inset + torch.rand(m, generator=gen, dtype=torch.float64) * (self.crown - 2 * inset)
+        return y, z
 
     @property
     def crown(self) -> float:

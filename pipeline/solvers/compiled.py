@@ -150,7 +150,8 @@ def _frames(x, sp, ch, q, F):
 
 @njit(cache=True)
 def _clearances(F, ch, sf, c, arg, frac, E):
-    clearances_into(F, sf[0], sf[1], sf[2], sf[3], sf[4], sf[5], sf[6], sf[7], sf[8], sf[9], sf[10], c, arg, frac, E)
+    clearances_into(F, sf[0], sf[1], sf[2], sf[3], sf[4], sf[5], sf[6], sf[7], sf[8], sf[9], sf[10], sf[11], c, arg,
+                    frac, E)
 
 
 @njit(cache=True)
@@ -187,8 +188,8 @@ def _evaluate(x, target, mode, c_prev, sp, ch, sf, st, q, F, pose, Jfull, Gfull,
     for k in range(4):
         any_active = any_active or c[k] < margin
     if any_active:
-        clearance_jacobians_into(F, sf[0], sf[1], sf[2], sf[3], sf[4], sf[5], sf[6], sf[7], sf[8], sf[9], sf[10], ch[7],
-                                 ch[8], ch[9], ch[10], cc, Gfull)
+        clearance_jacobians_into(F, sf[0], sf[1], sf[2], sf[3], sf[4], sf[5], sf[6], sf[7], sf[8], sf[9], sf[10],
+                                 sf[11], ch[7], ch[8], ch[9], ch[10], cc, Gfull)
         for k in range(4):
             if c[k] < margin:
                 r[6 + k] = weight * (c[k] - margin)
