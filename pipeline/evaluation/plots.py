@@ -11,7 +11,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from pipeline.geometry.collision import SAFETY_KINDS
-from pipeline.geometry.tunnel import Horseshoe
+from pipeline.geometry.tunnel import Tunnel
 
 
 def figure(nrows: int = 1, ncols: int = 1, **kwargs):
@@ -37,7 +37,7 @@ def training_curves(histories: dict[str, pd.DataFrame]):
     return fig
 
 
-def face_projection(projections: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], tunnel: Horseshoe):
+def face_projection(projections: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], tunnel: Tunnel):
     """Collars on the face (y, z) coloured by hole-seeking error, one panel per method (Fig. 10).
 
     Each panel has its own colour scale, capped at its p95, since the methods' errors can
@@ -130,23 +130,23 @@ def _stadium(a: np.ndarray, b: np.ndarray, r: float, n: int = 16) -> np.ndarray:
     return np.concatenate([end_b, end_a, end_b[:1]])
 
 
-def _tunnel_outline(ax, view: str, tunnel: Horseshoe, safety_wall: float, x_range: tuple[float, float]) -> None:
+def _tunnel_outline(ax, view: str, tunnel: Tunnel, safety_wall: float, x_range: tuple[float, float]) -> None:
     if view == "front":
         ys, zs = tunnel.profile_polyline()
         ax.plot(ys, zs, color="k", lw=1)
         return
     lo, hi = x_range
-    if view == "side":
-        for z in (0.0, tunnel.crown):
+    if view == "side":  # the floor's lowest and the roof's highest point (horseshoe: 0 and the crown)
+        for z in tunnel.z_range:
             ax.plot([lo, hi], [z, z], color="k", lw=1)
     else:
-        for y in (-tunnel.half_width, tunnel.half_width):
+        for y in tunnel.y_range:
             ax.plot([lo, hi], [y, y], color="k", lw=1)
             inner = y - np.sign(y) * safety_wall
             ax.plot([lo, hi], [inner, inner], color="k", lw=0.6, ls=":")
 
 
-def solution_figure(table: pd.DataFrame, collars: np.ndarray, tunnel: Horseshoe, boom_views: list[dict],
+def solution_figure(table: pd.DataFrame, collars: np.ndarray, tunnel: Tunnel, boom_views: list[dict],
                     safety_wall: float = 0.5):
     """The face (holes on the profile, coloured by status, error of every hole that is not ok written
     beside it) and, below, the boom's capsules in side, top and front view at each hole of
@@ -188,7 +188,7 @@ def solution_figure(table: pd.DataFrame, collars: np.ndarray, tunnel: Horseshoe,
     return fig
 
 
-def collar_clouds(sets: dict[str, np.ndarray], tunnel: Horseshoe, shares: dict[str, float] | None = None):
+def collar_clouds(sets: dict[str, np.ndarray], tunnel: Tunnel, shares: dict[str, float] | None = None):
     """Paper 000 Fig. 5: the collar points of each hole set, front (y-z, with the profile) and side
     (x-z) projections; ``sets`` maps a name to its ``(n, 6)`` poses."""
     fig, axes = figure(2, len(sets), figsize=(5.2 * len(sets), 8.5), squeeze=False)
@@ -201,8 +201,8 @@ def collar_clouds(sets: dict[str, np.ndarray], tunnel: Horseshoe, shares: dict[s
         front.set(aspect="equal", xlabel="y (m)", ylabel="z (m)", title=f"{name}: collars, front{share}",
                   xlim=(-6, 6), ylim=(-3, 9))
         side.scatter(pose[:, 0], pose[:, 2], s=1, alpha=0.3)
-        side.axhline(0.0, color="k", lw=1)
-        side.axhline(tunnel.crown, color="k", lw=1)
+        for z in tunnel.z_range:
+            side.axhline(z, color="k", lw=1)
         side.set(xlabel="x (m)", ylabel="z (m)", title=f"{name}: collars, side", xlim=(-2, 10), ylim=(-3, 9))
     fig.tight_layout()
     return fig

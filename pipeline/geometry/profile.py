@@ -119,7 +119,8 @@ class Profile:
         nxt = np.roll(yz, -1, axis=0)
         area = 0.5 * float((yz[:, 0] * nxt[:, 1] - nxt[:, 0] * yz[:, 1]).sum())
         d = nxt - yz
-        inward = np.stack([-d[:, 1], d[:, 0]], -1) * (1.0 if area > 0 else -1.0)  # left of a counter-clockwise edge
+        self.inward_sign = 1.0 if area > 0 else -1.0
+        inward = np.stack([-d[:, 1], d[:, 0]], -1) * self.inward_sign  # left of a counter-clockwise edge
         self.inward = inward / np.linalg.norm(inward, axis=1, keepdims=True)
         self.segments = np.concatenate([yz, nxt], axis=1)  # (m, 4): y0, z0, y1, z1
         self.area = abs(area)
@@ -254,6 +255,24 @@ class Profile:
         z = z0 + inset + torch.rand(m, generator=gen, dtype=torch.float64) * (z1 - z0 - 2 * inset)
         return y, z
 
+    # -- the outline as paths (the face designer's perimeter and floor) -------------------------------
+    def paths(self) -> tuple[BoundaryPath, BoundaryPath]:
+        """The floor (the longest run of ground segments, left to right) and the rest of the outline (from
+        the floor's left end up, over the roof, down to its right end), as :class:`BoundaryPath`."""
+        yz, kinds = self.yz, self.kinds
+        if self.inward_sign < 0:  # walk counter-clockwise: the floor then runs left to right
+            yz, kinds = yz[::-1].copy(), np.roll(kinds[::-1], -1).copy()
+        ground = kinds == _KIND["ground"]
+        n = len(kinds)
+        runs = [(i, next(k for k in range(1, n + 1) if not ground[(i + k) % n]))  # (first segment, length)
+                for i in range(n) if ground[i] and not ground[i - 1]] or [(0, n)]
+        first, count = max(runs, key=lambda r: r[1])
+        order = np.roll(np.arange(n), -first)
+        pts = yz[order]
+        floor = pts[: count + 1]
+        rest = np.concatenate([pts[count:], pts[:1]])[::-1]  # from the floor's left end round to its right end
+        return BoundaryPath(floor, 1), BoundaryPath(rest, -1)
+
     # -- capsules ----------------------------------------------------------------------------------
     def capsule_distances(self, start: torch.Tensor, axis: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Per capsule axis ``start + u axis`` (``u`` in [0, 1], ``(..., 3)``, x ignored), its distance to
@@ -269,3 +288,42 @@ class Profile:
             values = torch.where(deeper, signed, values)
             frac = torch.where(deeper, torch.full_like(frac, u), frac)
         return values, frac
+
+
+class BoundaryPath:
+    """A run of the outline as a path parametrised by arc length: points and outward unit normals at any
+    lengths, for the face designer's contour holes and lifters. ``vertices (k + 1, 2)`` in walking order;
+    ``side`` is +1 when the drift's inside lies left of the walk, -1 when it lies right."""
+
+    def __init__(self, vertices: np.ndarray, side: int):
+        self.vertices = np.asarray(vertices, dtype=np.float64)
+        step = np.diff(self.vertices, axis=0)
+        self.seg_length = np.linalg.norm(step, axis=1)
+        self.cum = np.concatenate([[0.0], np.cumsum(self.seg_length)])
+        left = np.stack([-step[:, 1], step[:, 0]], -1) / self.seg_length[:, None]
+        self.outward = -side * left  # away from the drift
+
+    @property
+    def length(self) -> float:
+        return float(self.cum[-1])
+
+    def at(self, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Points ``(n, 2)`` and outward normals ``(n, 2)`` at arc lengths ``s (n,)`` (clamped to the path)."""
+        s_np = np.clip(s.detach().cpu().numpy().astype(np.float64), 0.0, self.length)
+        i = np.clip(np.searchsorted(self.cum, s_np, side="right") - 1, 0, len(self.seg_length) - 1)
+        u = (s_np - self.cum[i]) / self.seg_length[i]
+        pts = self.vertices[i] + u[:, None] * (self.vertices[i + 1] - self.vertices[i])
+        return torch.as_tensor(pts, dtype=torch.float64), torch.as_tensor(self.outward[i].copy(), dtype=torch.float64)
+
+    def first_at_height(self, rise: float, from_end: bool = False) -> float:
+        """The least arc length (from the start, or from the end when ``from_end``) where the path has risen
+        ``rise`` above its own end point; the path's length when it never does."""
+        v = self.vertices[::-1] if from_end else self.vertices
+        cum = self.length - self.cum[::-1] if from_end else self.cum
+        target = v[0, 1] + rise
+        for k in range(len(v) - 1):
+            z0, z1 = v[k, 1], v[k + 1, 1]
+            if z1 >= target > z0 or z0 >= target:
+                u = 0.0 if z0 >= target else (target - z0) / (z1 - z0)
+                return float(cum[k] + u * (cum[k + 1] - cum[k]))
+        return self.length

@@ -1,4 +1,5 @@
-"""The demo face: a realistic, drillable round for the reference horseshoe, designed on the safety model."""
+"""The demo face: a realistic, drillable round for the drift of the safety model (the reference horseshoe,
+or any profile), designed on the safety model."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import torch
 
 from pipeline.core.errors import ConfigError
 from pipeline.geometry.collision import SafetyModel
-from pipeline.geometry.tunnel import Horseshoe
+from pipeline.geometry.tunnel import Horseshoe, Tunnel
 from pipeline.plans.csv_plan import write_csv_plan
 from pipeline.plans.iredes import write_iredes_plan
 from pipeline.plans.model import COLLAR, COORDS, TOE, DrillPlan, plan_frame
@@ -74,7 +75,10 @@ def _look_out(safety, x_face, depth, points, normals, *, inset, lookout, max_ang
     n = points.shape[0]
 
     def clear_at(c, a):
-        return _worst(feed_clearance(safety, *_outward_holes(x_face, points, normals, c, a))) >= margin
+        collar, direction = _outward_holes(x_face, points, normals, c, a)
+        # a collar inset along one segment's normal can lie nearer the next segment of a profile: ask both
+        inside = safety.tunnel.contains(collar[:, 1], collar[:, 2], inset - 1e-9)
+        return (_worst(feed_clearance(safety, collar, direction)) >= margin) & inside
 
     def inset_for(a):
         lo, hi = torch.full((n,), float(inset), dtype=torch.float64), torch.full((n,), max_inset, dtype=torch.float64)
@@ -95,9 +99,63 @@ def _look_out(safety, x_face, depth, points, normals, *, inset, lookout, max_ang
     return inset_for(angle), angle
 
 
-def _grid(tunnel: Horseshoe, spacing: float, burden: float, z_from: float) -> torch.Tensor:
+def _profile_perimeter(tunnel, z_from: float, spacing: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """A profile's :func:`_perimeter`: evenly spaced points on its walls and roof (every segment but the
+    floor's), from ``z_from`` up one side over the top to ``z_from`` up the other, and the outward normals."""
+    _, rest = tunnel.paths()
+    s0, s1 = rest.first_at_height(z_from), rest.length - rest.first_at_height(z_from, from_end=True)
+    if not s1 > s0:
+        raise ConfigError(f"demo face: contour_from = {z_from!r} m leaves no wall or roof of {tunnel.describe()} "
+                          "for contour holes")
+    return rest.at(torch.linspace(s0, s1, max(3, round((s1 - s0) / spacing) + 1), dtype=torch.float64))
+
+
+def _profile_lifters(safety, x_face, depth, *, spacing, inset, lookout, max_angle, margin):
+    """A profile's lifters: the middle of its floor gets the least inset and look-out (:func:`_look_out`), and
+    lifters with those share the stretch of floor on either side where their feed beam stays clear, evenly
+    spaced, each looking out along its own floor segment's normal (a sloped floor is followed)."""
+    floor, _ = safety.tunnel.paths()
+    mid = floor.at(torch.tensor([0.5 * floor.length], dtype=torch.float64))
+    l_in, l_ang = _look_out(safety, x_face, depth, *mid, inset=inset, lookout=lookout, max_angle=max_angle,
+                            margin=margin)
+
+    def clear(s):
+        pts, nrm = floor.at(s)
+        return _worst(feed_clearance(safety, *_outward_holes(x_face, pts, nrm, l_in.expand_as(s),
+                                                             l_ang.expand_as(s)))) >= margin
+
+    half = torch.tensor([0.5 * floor.length], dtype=torch.float64)
+    left = float(_bisect(clear, torch.zeros(1, dtype=torch.float64), half))
+    right = floor.length - float(_bisect(lambda s: clear(floor.length - s), torch.zeros(1, dtype=torch.float64),
+                                         half))
+    n = max(2, round((right - left) / spacing) + 1)
+    pts, nrm = floor.at(torch.linspace(left, right, n, dtype=torch.float64))
+    return _outward_holes(x_face, pts, nrm, l_in.expand(n), l_ang.expand(n))
+
+
+def _horseshoe_lifters(safety, x_face, depth, *, spacing, inset, lookout, max_angle, margin):
+    """Lifters on the horseshoe's flat floor: the centre one's inset and angle, shared out to the widest y
+    whose beam is clear, evenly spaced and looking down."""
+    f64 = torch.float64
+    mid = torch.tensor([[0.0, 0.0]], dtype=f64), torch.tensor([[0.0, -1.0]], dtype=f64)
+    l_in, l_ang = _look_out(safety, x_face, depth, *mid, inset=inset, lookout=lookout, max_angle=max_angle,
+                            margin=margin)
+
+    def lifter_clear(y):
+        pts = torch.stack([y, torch.zeros_like(y)], -1)
+        c, a = l_in.expand_as(y), l_ang.expand_as(y)
+        return _worst(feed_clearance(safety, *_outward_holes(x_face, pts, mid[1].expand_as(pts), c, a))) >= margin
+
+    r = safety.tunnel.half_width
+    y_max = float(-_bisect(lambda t: lifter_clear(-t), torch.tensor([-r], dtype=f64), torch.tensor([0.0], dtype=f64)))
+    n_lift = max(2, round(2 * y_max / spacing) + 1)
+    l_pts = torch.stack([torch.linspace(-y_max, y_max, n_lift, dtype=f64), torch.zeros(n_lift, dtype=f64)], -1)
+    return _outward_holes(x_face, l_pts, mid[1].expand(n_lift, 2), l_in.expand(n_lift), l_ang.expand(n_lift))
+
+
+def _grid(tunnel: Tunnel, spacing: float, burden: float, z_from: float) -> torch.Tensor:
     """Staggered rows (y, z), symmetric about the centre line, covering the profile."""
-    r = tunnel.half_width
+    r = max(-tunnel.y_range[0], tunnel.y_range[1])  # the horseshoe: its half width
     rows = torch.arange(z_from, tunnel.crown, burden, dtype=torch.float64)
     cols = torch.arange(-math.floor(r / spacing) - 1, math.floor(r / spacing) + 2, dtype=torch.float64) * spacing
     shift = (torch.arange(len(rows)) % 2).to(torch.float64)[:, None] * (0.5 * spacing)
@@ -136,7 +194,7 @@ def _frame(kind, prefix, collar, direction, length, diameter_mm):
 
 
 def demo_face(
-    tunnel: Horseshoe | None = None,
+    tunnel: Tunnel | None = None,
     *,
     safety: SafetyModel,
     x_face: float = 6.5,
@@ -196,8 +254,10 @@ def demo_face(
     for key, v in lengths.items():
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
             raise ConfigError(f"demo face: {key} = {v!r}: expected a positive length (m)")
-    if not 0 < contour_from < tunnel.wall_height:
-        raise ConfigError(f"demo face: contour_from = {contour_from!r}: expected a height in (0, wall height) m")
+    wall_top = tunnel.wall_height if tunnel.kind == "horseshoe" else tunnel.z_range[1] - tunnel.z_range[0]
+    if not 0 < contour_from < wall_top:
+        raise ConfigError(f"demo face: contour_from = {contour_from!r}: expected a height in (0, {wall_top:g}) m "
+                          f"({'wall height' if tunnel.kind == 'horseshoe' else 'the profile height'})")
     if not (0 < max_lookout_deg < 15 and inset >= 0 and lookout >= 0 and margin >= 0 and n_relief >= 1):
         raise ConfigError(
             f"demo face: max_lookout_deg = {max_lookout_deg!r} must be in (0, 15), inset = {inset!r}, "
@@ -207,25 +267,17 @@ def demo_face(
     max_angle = math.radians(max_lookout_deg)
 
     # Perimeter: contour on walls and arch, lifters on the floor.
-    k_pts, k_nrm = _perimeter(tunnel, contour_from, contour_spacing)
+    horseshoe = tunnel.kind == "horseshoe"
+    k_pts, k_nrm = (_perimeter if horseshoe else _profile_perimeter)(tunnel, contour_from, contour_spacing)
     k_in, k_ang = _look_out(safety, x_face, depth, k_pts, k_nrm, inset=inset, lookout=lookout,
                             max_angle=max_angle, margin=margin)
-    mid = torch.tensor([[0.0, 0.0]], dtype=f64), torch.tensor([[0.0, -1.0]], dtype=f64)
-    l_in, l_ang = _look_out(safety, x_face, depth, *mid, inset=inset, lookout=lookout, max_angle=max_angle,
-                            margin=margin)
-    # Lifters share the centre one's inset and angle, out to the widest y whose beam is clear.
-    def lifter_clear(y):
-        pts = torch.stack([y, torch.zeros_like(y)], -1)
-        c, a = l_in.expand_as(y), l_ang.expand_as(y)
-        return _worst(feed_clearance(safety, *_outward_holes(x_face, pts, mid[1].expand_as(pts), c, a))) >= margin
-
-    r = tunnel.half_width
-    y_max = float(-_bisect(lambda t: lifter_clear(-t), torch.tensor([-r], dtype=f64), torch.tensor([0.0], dtype=f64)))
-    n_lift = max(2, round(2 * y_max / lifter_spacing) + 1)
-    l_pts = torch.stack([torch.linspace(-y_max, y_max, n_lift, dtype=f64), torch.zeros(n_lift, dtype=f64)], -1)
-    l_nrm = mid[1].expand(n_lift, 2)
     contour = _outward_holes(x_face, k_pts, k_nrm, k_in, k_ang)
-    lifters = _outward_holes(x_face, l_pts, l_nrm, l_in.expand(n_lift), l_ang.expand(n_lift))
+    if horseshoe:
+        lifters = _horseshoe_lifters(safety, x_face, depth, spacing=lifter_spacing, inset=inset, lookout=lookout,
+                                     max_angle=max_angle, margin=margin)
+    else:
+        lifters = _profile_lifters(safety, x_face, depth, spacing=lifter_spacing, inset=inset, lookout=lookout,
+                                   max_angle=max_angle, margin=margin)
 
     # Cut and stoping: parallel holes.
     relief, cut = _cut(cut_centre, cut_radii, n_relief, relief_gap)
@@ -250,7 +302,7 @@ def demo_face(
     frames = [_frame(kind, prefix, c, d, depth / d[:, 0], dia) for kind, prefix, (c, d), dia in groups]
     holes = pd.concat(frames, ignore_index=True)
     _check_drillable(safety, holes, inset, max_lookout_deg)
-    name = f"demo face: horseshoe {tunnel.width:g} x {tunnel.crown:g} m, face at x = {x_face:g} m, depth {depth:g} m"
+    name = f"demo face: {tunnel.describe()}, face at x = {x_face:g} m, depth {depth:g} m"
     return DrillPlan(holes, [], plan_id="demo_face", name=name, source=None, format="demo")
 
 
