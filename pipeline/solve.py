@@ -11,11 +11,12 @@ solves every hole with the hybrid solver (:mod:`pipeline.solvers.hybrid`), and w
 preview and hole-seeking error (mm), the four clearances (m), ``status`` (ok, inexact, unsafe,
 unreachable; invalid for unreadable rows) and ``method``; plus ``<stem>_solution.png`` (the face by
 status and the boom where it matters) and ``<stem>_solution.json`` (counts, timing, the IREDES
-checksum state, the set's MD5s). Rows stay in the plan's order, invalid ones in place. ``out`` is
-checked before any work and the three files are published as one set (:mod:`pipeline.plans.output`);
-the plan is solved in chunks (:mod:`pipeline.plans.chunks`). Logs an MLflow run. With ``strict=true``
-it exits with status 1 unless every hole is ok. The hybrid's settings are the ``solver`` group
-(conf/solver/hybrid.yaml).
+checksum state with the convention and line ends that matched, the file's TMatrix as applied, the
+set's MD5s: :meth:`~pipeline.plans.model.DrillPlan.provenance`). Rows stay in the plan's order,
+invalid ones in place. ``out`` is checked before any work and the three files are published as one
+set (:mod:`pipeline.plans.output`); the plan is solved in chunks (:mod:`pipeline.plans.chunks`). Logs
+an MLflow run. With ``strict=true`` it exits with status 1 unless every hole is ok. The hybrid's
+settings are the ``solver`` group (conf/solver/hybrid.yaml).
 
 A rig of more than one boom (``rig=twin``, ``rig=trio``) writes a reach table instead
 (:mod:`pipeline.plans.reach`, docs/rig.md): one row per hole and boom, a ``boom`` column, the other
@@ -46,6 +47,7 @@ from pipeline.evaluation.plots import solution_figure
 from pipeline.learning.network_source import load_network
 from pipeline.plans.chunks import solve_in_chunks
 from pipeline.plans.iredes import MAX_TEXT
+from pipeline.plans.iredes_frames import TMATRIX_TOL
 from pipeline.plans.model import COLLAR
 from pipeline.plans.output import solution_paths, write_solution_set
 from pipeline.plans.reach import reach_figure, reach_table, rig_solvers
@@ -70,6 +72,7 @@ class IredesSettings:
     origin: tuple[float, ...] = (0.0, 0.0, 0.0)
     checksum: str = field(default="refuse", metadata=rule(choices=("refuse", "warn", "ignore")))
     max_text: int = field(default=MAX_TEXT, metadata=rule(ge=1))
+    tmatrix_tol: float = field(default=TMATRIX_TOL, metadata=rule(gt=0))
 
 
 @dataclass(frozen=True)
@@ -136,8 +139,7 @@ def run(cfg: DictConfig) -> dict:
                if settings.figure else None)
         if fig is not None:
             mlrun.log_figure(fig, "solution.png")
-        record = {"plan": str(plan_path), "method": method, "checksum": plan.checksum,
-                  "checksum_detail": plan.checksum_detail, **summary}
+        record = {"plan": str(plan_path), "method": method, **plan.provenance(), **summary}
         write_solution_set(paths, table, record, fig, lambda staged: mlrun.log_artifact(staged["csv"]))
     log.info("solved %d holes in %.2f s (%.3f ms/hole): %s -> %s", len(plan), result.wall_s, summary["ms_per_hole"],
              status_counts(table), out)
@@ -174,8 +176,7 @@ def solve_rig(cfg: DictConfig, rig, settings: SolveSettings, hybrid: HybridSetti
         fig = reach_figure(reach, plan, rig) if settings.figure else None
         if fig is not None:
             mlrun.log_figure(fig, "reach.png")
-        record = {"plan": str(plan_path), "method": method, "checksum": plan.checksum,
-                  "checksum_detail": plan.checksum_detail, **summary}
+        record = {"plan": str(plan_path), "method": method, **plan.provenance(), **summary}
         write_solution_set(paths, reach.table, record, fig, lambda staged: mlrun.log_artifact(staged["csv"]))
     log.info("rig %s: %d holes, %d ok by at least one boom (%s) -> %s", rig.name, summary["holes"],
              summary["ok_by_any"], ", ".join(f"{b}: {summary[b + '.ok']} ok" for b in rig.names), out)

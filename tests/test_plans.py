@@ -231,7 +231,8 @@ def test_reads_a_rig_style_file(tmp_path):
     (tmp_path / "rig.xml").write_bytes(data.replace(b"<IR:ChkSum>0<", f"<IR:ChkSum>{crc}<".encode()))
     plan = read_iredes_plan(tmp_path / "rig.xml", axes="yxz", origin=(7000100.0, 480000.0, 100.0))
     h = plan.holes.iloc[0]
-    assert h["hole_id"] == "1" and h["hole_type"] == "Undefined" and h["HoleName"] == "R12-1" and h["MwdOn"] == 1
+    assert h["hole_id"] == "1" and h["HoleName"] == "R12-1" and h["MwdOn"] == 1
+    assert h["hole_type"] == ""  # TypeOfHole Undefined: no type
     np.testing.assert_allclose(h[COORDS].to_numpy(dtype=float), [6.5, 0.25, 1.5, 10.0, 0.25, 1.5], atol=1e-9)
 
 

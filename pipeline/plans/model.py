@@ -44,6 +44,7 @@ _PLAIN_NUMBER = re.compile(r"[+-]?\d+(\.\d+)?")
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 SHOWN_PROBLEMS = 10  # problems quoted in a file-level error message
 _NON_FINITE = r"[+-]?(nan|inf|infinity)"
+_LEADING_ZERO = r"[+-]?0\d"  # "007": an id or name, not the number 7
 
 
 @dataclass(frozen=True)
@@ -83,6 +84,12 @@ class DrillPlan:
     # IREDES ChkSum: verified / unverified / ignored; "not applicable" for formats without one
     checksum: str = "not applicable"
     checksum_detail: str = ""
+    # when verified: the convention that matched ("documented": ChkSum 0, "empty-value": ChkSum empty)
+    # and the line ends ("as written", or "converted (CRLF -> LF)" for a copy that changed only those)
+    checksum_convention: str | None = None
+    checksum_line_ends: str | None = None
+    # IREDES TMatrix applied to the file's points (4x4, before the axis map); None when the file has none
+    local_to_plan: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.holes)
@@ -98,6 +105,15 @@ class DrillPlan:
     def report(self) -> list[str]:
         """One line per problem, naming the file, row, hole and column."""
         return [p.describe(self.source) for p in self.problems]
+
+    def provenance(self) -> dict:
+        """What the solution's JSON says about the file: the checksum state, its detail, the
+        convention and line ends that matched (None unless verified), and the local-to-plan
+        matrix applied (a 4x4 nested list of rows, None when none was)."""
+        M = self.local_to_plan
+        return {"checksum": self.checksum, "checksum_detail": self.checksum_detail,
+                "checksum_convention": self.checksum_convention, "checksum_line_ends": self.checksum_line_ends,
+                "local_to_plan": None if M is None else np.asarray(M, dtype=float).tolist()}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -124,12 +140,14 @@ _KIND_TEXT = {1: "missing value", 2: "non-numeric value {!r}", 3: "non-finite va
 
 def infer_column_types(df: pd.DataFrame) -> pd.DataFrame:
     """Columns read as text become numbers where every non-empty value is one, as pandas types
-    a CSV column (IREDES extras); the others stay text."""
+    a CSV column (IREDES extras); the others stay text, and so does a column with a value such as
+    ``007`` (a name or id: as a number it would lose its zeros and meet ``7``)."""
     out = df.copy()
     for col in out.columns:
         text = out[col].astype("string").fillna("").str.strip()
         nums = pd.to_numeric(text.replace("", None).astype(object), errors="coerce")
-        numeric = text.ne("").any() and nums.notna().eq(text.ne("")).all()
+        numeric = (text.ne("").any() and nums.notna().eq(text.ne("")).all()
+                   and not text.str.match(_LEADING_ZERO).any())
         out[col] = nums if numeric else text.astype(str)
     return out
 
