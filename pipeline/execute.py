@@ -56,7 +56,8 @@ from pipeline.execution.interrupt import interrupted_round, standing
 from pipeline.execution.montecarlo import draws, fixed_factors, parse_execution, run, summary
 from pipeline.execution.trajectory import action_rows, retimed
 from pipeline.plans.model import COLLAR
-from pipeline.plans.read import read_plan
+from pipeline.plans.navigation import NavigationSettings, same_navigation
+from pipeline.plans.read import read_plan_in_rig_frame
 from pipeline.plans.solutions import spreadsheet_safe
 from pipeline.round.output import EXECUTED, round_paths, write_round_set
 from pipeline.tracking.runs import TrackingSettings, stage_run
@@ -183,7 +184,9 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
     doc = json.loads(planned["json"].read_text())
     if doc.get("rig") != rig.name:
         raise ConfigError(f"rig = {rig.name}: the planned round {planned['json']} is of rig {doc.get('rig')!r}")
-    plan = read_plan(plan_path, **(as_dict(cfg.solve.iredes) if plan_path.suffix.lower() == ".xml" else {}))
+    plan = read_plan_in_rig_frame(plan_path, parse(NavigationSettings, cfg.navigation, "navigation"),
+                                  as_dict(cfg.solve.iredes))
+    same_navigation(plan.navigation, doc.get("navigation"), planned["json"])
     ids = plan.holes["hole_id"].astype(str).tolist()
     table = read_actions(planned["actions"])
     acts = actions_from_table(table, rig.names, ids, str(planned["actions"]))

@@ -30,8 +30,9 @@ from pipeline.core.settings import coerce, parse
 from pipeline.core.stage import run_stage
 from pipeline.data.holes import joint_box
 from pipeline.motion.timing import rig_motions
+from pipeline.plans.navigation import NavigationSettings, navigation_params
 from pipeline.plans.reach import reach_table, rig_solvers
-from pipeline.plans.read import read_plan
+from pipeline.plans.read import read_plan_in_rig_frame
 from pipeline.solvers.hybrid import HybridSettings
 from pipeline.solvers.network_start import first_starts, network_source
 from pipeline.tracking.runs import TrackingSettings, stage_run
@@ -49,14 +50,15 @@ def run(cfg: DictConfig) -> dict:
                           "boom in the way: use rig=twin or rig=trio")
     limits = [m.joints for m in rig_motions(as_dict(cfg.motion), rig.booms)]
     plan_path = project_path(coerce(cfg.plan, "str", "plan"))
-    plan = read_plan(plan_path)
+    plan = read_plan_in_rig_frame(plan_path, parse(NavigationSettings, cfg.navigation, "navigation"),
+                                  as_dict(cfg.solve.iredes))
     network = coerce(cfg.solve.network, "str", "solve.network")
     source = network_source(project_path(cfg.paths.data), network, cfg.solve.get("model_uri"))
     out = project_path(cfg.paths.data) / "benchmark"
     box = cfg.holes.sup.get("box")
     with stage_run(tracking, f"move-benchmark-{rig.name}", {"stage": "move_benchmark", "rig": rig.name}) as mlrun:
         mlrun.log_params({"plan": str(plan_path), "rig": rig.name, "move_benchmark": as_dict(cfg.move_benchmark),
-                          "solver": as_dict(cfg.solver), "network": str(source)})
+                          "solver": as_dict(cfg.solver), "network": str(source), **navigation_params(plan)})
         first_start = first_starts(source, network, tracking.uri, "solve.model_uri")
         start_box = joint_box(rig.booms[0].boom, None if box is None else as_dict(box))
         solvers = rig_solvers(rig, first_start, hybrid, start_box)

@@ -55,8 +55,9 @@ from pipeline.execution.montecarlo import parse_execution
 from pipeline.execution.robust import robust_finish
 from pipeline.motion.timing import rig_motions
 from pipeline.plans.model import COLLAR
+from pipeline.plans.navigation import NavigationSettings, navigation_metrics, navigation_params
 from pipeline.plans.reach import reach_table, rig_solvers
-from pipeline.plans.read import read_plan
+from pipeline.plans.read import read_plan_in_rig_frame
 from pipeline.plans.solutions import spreadsheet_safe
 from pipeline.round.from_plan import schedule_round
 from pipeline.round.output import round_paths, write_round_set
@@ -122,8 +123,8 @@ def run(cfg: DictConfig) -> dict:
     require_writable(files.folder, "out (its folder)")
     rig = composed_rig(cfg, model_setting)  # its booms from boom, boom_model, boom_models: before any work
     motions = rig_motions(as_dict(cfg.motion), rig.booms)
-    iredes = as_dict(cfg.solve.iredes) if plan_path.suffix.lower() == ".xml" else {}
-    plan = read_plan(plan_path, **iredes)
+    plan = read_plan_in_rig_frame(plan_path, parse(NavigationSettings, cfg.navigation, "navigation"),
+                                  as_dict(cfg.solve.iredes))
     if len(plan) == 0:
         raise ConfigError(f"plan = {plan_path}: no readable hole")
     precedence_indices(round_settings.precedence, plan.holes["hole_id"].astype(str).tolist())  # before solving
@@ -135,7 +136,7 @@ def run(cfg: DictConfig) -> dict:
                    {"stage": "schedule", "plan": str(plan_path), "rig": rig.name}) as mlrun:
         mlrun.log_params({"plan": str(plan_path), "rig": rig.name, "schedule": asdict(settings),
                           "round": as_dict(cfg.round), "execution": as_dict(cfg.execution),
-                          "motion": as_dict(cfg.motion), "solver": as_dict(cfg.solver)})
+                          "motion": as_dict(cfg.motion), "solver": as_dict(cfg.solver), **navigation_params(plan)})
         mlrun.log_dataset(plan.holes, plan_path, "drill plan")
 
         first_start = first_starts(source, settings.network, tracking.uri, "schedule.model_uri")
@@ -152,7 +153,8 @@ def run(cfg: DictConfig) -> dict:
         finally:
             close()
         table = with_invalid_rows(res.round, plan)
-        summary = {"plan": str(plan_path), **res.summary, "invalid_rows": len({p.row for p in plan.problems})}
+        summary = {"plan": str(plan_path), **res.summary, "invalid_rows": len({p.row for p in plan.problems}),
+                   "navigation": plan.navigation.record()}
         # wall-clock seconds go to MLflow only: the round JSON is DVC-tracked and must reproduce
         timings = {**res.timings, "reach_solve_s": reach.summary()["solve_s"]}
         executed = res.finished
@@ -201,7 +203,8 @@ def run(cfg: DictConfig) -> dict:
                 label = f"realised: {executed.realised_label} (waits at interlocks shown)"
                 writers["executed_replay"] = lambda p: write_text(
                     replay_html(r_traj, rig, collars, settings.replay_frames, label), p)
-        mlrun.log_metrics({**metrics(summary), **{f"timing.{k}": v for k, v in timings.items()}})
+        mlrun.log_metrics({**metrics(summary), **{f"timing.{k}": v for k, v in timings.items()},
+                           **navigation_metrics(plan)})
         mlrun.log_table(table, "round.json")
         mlrun.log_table(res.trajectory, "trajectory.json")
 

@@ -49,10 +49,11 @@ from pipeline.plans.chunks import solve_in_chunks
 from pipeline.plans.iredes import MAX_TEXT
 from pipeline.plans.iredes_frames import TMATRIX_TOL
 from pipeline.plans.model import COLLAR
+from pipeline.plans.navigation import NavigationSettings, navigation_metrics, navigation_params
 from pipeline.plans.output import solution_paths, write_solution_set
 from pipeline.plans.reach import reach_figure, reach_table, rig_solvers
-from pipeline.plans.read import MAX_PLAN_MB, read_plan
-from pipeline.plans.solutions import CLEARANCE_COLUMNS, solution_frame, status_counts
+from pipeline.plans.read import MAX_PLAN_MB, read_plan_in_rig_frame
+from pipeline.plans.solutions import CLEARANCE_COLUMNS, solution_frame, solved_holes, status_counts
 from pipeline.solvers.base import NetworkSolver
 from pipeline.solvers.hybrid import HybridSettings, HybridSolver
 from pipeline.solvers.network_start import first_starts, network_source
@@ -99,18 +100,19 @@ def run(cfg: DictConfig) -> dict:
     out = paths.csv
     require_writable(out.parent, "out (its folder)")
     strict = coerce(cfg.get("strict", False), "bool", "strict")
+    navigation = parse(NavigationSettings, cfg.navigation, "navigation")
     spec = rig_spec(cfg.rig)
     if len(spec.mounts) > 1:  # a reach table; one boom keeps today's path and file format
         rig = composed_rig(cfg, model_setting)  # boom_model: every boom of its kind; boom_models: per boom
-        return solve_rig(cfg, rig, settings, hybrid, tracking, plan_path, paths, strict)
+        return solve_rig(cfg, rig, settings, hybrid, tracking, plan_path, paths, strict, navigation)
     build_rig(spec, cfg.tunnel, cfg.safety, boom_cfg=cfg.boom)  # the one-boom rig checked; solved with `boom`
     if cfg.get("boom_models"):
         raise ConfigError(f"boom_models = {as_dict(cfg.boom_models)!r}: one model per boom of a rig; this is a "
                           "one-boom solve: use boom_model=<file>")
     boom = load_solve_boom(cfg.boom, cfg.get("boom_model"))
     safety = build_safety(boom, cfg.tunnel, cfg.safety)
-    iredes = asdict(settings.iredes) if plan_path.suffix.lower() == ".xml" else {}
-    plan = read_plan(plan_path, settings.max_plan_mb, **iredes)  # a bad plan fails before the network loads
+    # a bad plan or navigation fails before the network loads
+    plan = read_plan_in_rig_frame(plan_path, navigation, asdict(settings.iredes), settings.max_plan_mb)
     source = network_source(project_path(cfg.paths.data), settings.network, settings.model_uri)
     network, _ = load_network(source, boom, tracking.uri, "solve.model_uri")
     for line in plan.report():
@@ -120,18 +122,18 @@ def run(cfg: DictConfig) -> dict:
                                                          "plan_checksum": plan.checksum}) as mlrun:
         mlrun.log_params({"plan": str(plan_path), "solve": OmegaConf.to_container(cfg.solve, resolve=True),
                           "solver": as_dict(cfg.solver), "boom_model": str(cfg.get("boom_model")),
-                          "plan_checksum": plan.checksum})
+                          "plan_checksum": plan.checksum, **navigation_params(plan)})
         mlrun.log_dataset(plan.holes, plan_path, "drill plan")
         box = cfg.holes.sup.get("box")  # random starts within the working box
         solver = HybridSolver(boom, safety, NetworkSolver(boom, network, settings.network), hybrid, "hybrid",
                               joint_box(boom, None if box is None else as_dict(box)))
         result = solve_in_chunks(solver, plan.poses(boom.preview_depth), boom.preview_depth, settings.chunk,
                                  settings.progress)
-        table = solution_frame(plan, result, boom.joint_names, method)
+        table = solution_frame(plan, result, boom.joint_names, method, solved_holes(plan, *boom.tool_pose(result.q)))
         summary = {"holes": len(plan), "invalid_rows": invalid_rows(plan), **status_counts(table),
                    "hole_mm_max": float(np.nanmax(table["hole_mm"].to_numpy(dtype=float))), "solve_s": result.wall_s,
                    "ms_per_hole": 1000 * result.wall_s / len(plan)}
-        mlrun.log_metrics(summary)
+        mlrun.log_metrics({**summary, **navigation_metrics(plan)})
         if len(table) <= LOGGED_TABLE_ROWS:  # MLflow's table view holds the whole table in memory as JSON
             mlrun.log_table(table, "solution.json")
         fig = (solution_figure(table, plan.holes[COLLAR].to_numpy(), safety.tunnel,
@@ -139,7 +141,8 @@ def run(cfg: DictConfig) -> dict:
                if settings.figure else None)
         if fig is not None:
             mlrun.log_figure(fig, "solution.png")
-        record = {"plan": str(plan_path), "method": method, **plan.provenance(), **summary}
+        record = {"plan": str(plan_path), "method": method, **plan.provenance(), **summary,
+                  "navigation": plan.navigation.record()}
         write_solution_set(paths, table, record, fig, lambda staged: mlrun.log_artifact(staged["csv"]))
     log.info("solved %d holes in %.2f s (%.3f ms/hole): %s -> %s", len(plan), result.wall_s, summary["ms_per_hole"],
              status_counts(table), out)
@@ -149,12 +152,11 @@ def run(cfg: DictConfig) -> dict:
 
 
 def solve_rig(cfg: DictConfig, rig, settings: SolveSettings, hybrid: HybridSettings, tracking, plan_path, paths,
-              strict: bool) -> dict:
+              strict: bool, navigation: NavigationSettings) -> dict:
     """Every hole by every boom of ``rig``, the others at park: the reach table, its JSON and figure,
     published as one set like a single boom's solution."""
     source = network_source(project_path(cfg.paths.data), settings.network, settings.model_uri)
-    plan = read_plan(plan_path, settings.max_plan_mb,
-                     **(asdict(settings.iredes) if plan_path.suffix.lower() == ".xml" else {}))
+    plan = read_plan_in_rig_frame(plan_path, navigation, asdict(settings.iredes), settings.max_plan_mb)
     out = paths.csv
     for line in plan.report():
         log.warning("skipped: %s", line)
@@ -165,18 +167,21 @@ def solve_rig(cfg: DictConfig, rig, settings: SolveSettings, hybrid: HybridSetti
                                                                     "plan_checksum": plan.checksum}) as mlrun:
         mlrun.log_params({"plan": str(plan_path), "rig": rig.name, "solve": as_dict(cfg.solve),
                           "solver": as_dict(cfg.solver), "boom_model": str(cfg.get("boom_model")),
-                          "boom_models": str(cfg.get("boom_models")), "plan_checksum": plan.checksum})
+                          "boom_models": str(cfg.get("boom_models")), "plan_checksum": plan.checksum,
+                          **navigation_params(plan)})
         network = first_starts(source, settings.network, tracking.uri, "solve.model_uri")  # per boom, checked
         solvers = rig_solvers(rig, network, hybrid, joint_box(rig.booms[0].boom, None if box is None else as_dict(box)))
         reach = reach_table(plan, rig, solvers, method)
         summary = {"rig": rig.name, "booms": rig.names, "invalid_rows": invalid_rows(plan), **reach.summary()}
-        mlrun.log_metrics({k: v for k, v in summary.items() if isinstance(v, (int, float))})
+        mlrun.log_metrics({**{k: v for k, v in summary.items() if isinstance(v, (int, float))},
+                           **navigation_metrics(plan)})
         if len(reach.table) <= LOGGED_TABLE_ROWS:
             mlrun.log_table(reach.table, "reach.json")
         fig = reach_figure(reach, plan, rig) if settings.figure else None
         if fig is not None:
             mlrun.log_figure(fig, "reach.png")
-        record = {"plan": str(plan_path), "method": method, **plan.provenance(), **summary}
+        record = {"plan": str(plan_path), "method": method, **plan.provenance(), **summary,
+                  "navigation": plan.navigation.record()}
         write_solution_set(paths, reach.table, record, fig, lambda staged: mlrun.log_artifact(staged["csv"]))
     log.info("rig %s: %d holes, %d ok by at least one boom (%s) -> %s", rig.name, summary["holes"],
              summary["ok_by_any"], ", ".join(f"{b}: {summary[b + '.ok']} ok" for b in rig.names), out)

@@ -35,8 +35,11 @@ COORDS = COLLAR + TOE
 REQUIRED = ["hole_id", *COORDS]
 HOLE_TYPES = ("cut", "relief", "stoping", "lifter", "contour")
 MIN_LENGTH = 1e-6  # m; a shorter hole has no usable direction (toe == collar)
-# m from the boom base: far beyond any boom's reach, far below where squaring a coordinate overflows (1e154)
+# m from the rig (in the rig frame, after navigation): far beyond any boom's reach
 MAX_COORD = 1e4
+# m in the plan's own frame: mine grids reach 1e7 m (UTM northings); beyond this a value is a wrong unit,
+# and it stays far below where squaring a coordinate overflows (1e154)
+MAX_PLAN_COORD = 1e8
 # Ids a spreadsheet would evaluate as a formula (OWASP "CSV injection"), unless a plain number, and
 # control characters (they break CSV rows, logs and terminals): such a row is a row problem.
 _FORMULA_START = ("=", "+", "-", "@")
@@ -90,6 +93,9 @@ class DrillPlan:
     checksum_line_ends: str | None = None
     # IREDES TMatrix applied to the file's points (4x4, before the axis map); None when the file has none
     local_to_plan: np.ndarray | None = None
+    # the rig's pose in the plan frame the holes were taken into the rig frame with
+    # (pipeline.plans.navigation.RigPose); None: read as the file has them
+    navigation: object | None = None
 
     def __len__(self) -> int:
         return len(self.holes)
@@ -105,6 +111,26 @@ class DrillPlan:
     def report(self) -> list[str]:
         """One line per problem, naming the file, row, hole and column."""
         return [p.describe(self.source) for p in self.problems]
+
+    def drop_rows(self, drop: np.ndarray, column: str, messages: list[str]) -> None:
+        """Move the good holes where ``drop`` holds to the bad rows, each with its problem (``messages``, in
+        the holes' order); raises :class:`InputError` when no good hole is left."""
+        drop = np.asarray(drop, dtype=bool)
+        if not drop.any():
+            return
+        lines = np.arange(len(self.holes)) if self.lines is None else np.asarray(self.lines)
+        ids = self.holes["hole_id"].to_numpy()
+        new = [RowProblem(int(lines[i]), str(ids[i]), column, m)
+               for i, m in zip(np.flatnonzero(drop), messages, strict=True)]
+        self.problems = sorted([*self.problems, *new], key=lambda p: p.row)
+        if drop.all():
+            shown = "; ".join(p.describe() for p in new[:SHOWN_PROBLEMS])
+            raise InputError(f"{self.source}: no usable hole in {len(ids)} row(s): {shown}")
+        gone = self.holes[drop].drop(columns=[c for c in COORDS if c in self.holes]).reset_index(drop=True)
+        gone.insert(1, "line", lines[drop])
+        self.rejected = gone if self.rejected is None else pd.concat([self.rejected, gone], ignore_index=True)
+        self.holes = self.holes[~drop].reset_index(drop=True)
+        self.lines = lines[~drop]
 
     def provenance(self) -> dict:
         """What the solution's JSON says about the file: the checksum state, its detail, the
@@ -200,12 +226,12 @@ def checked_plan(
         problems.append((i, 0, id_label, f"duplicate hole id {ids[i]!r} (first at row {rows[first[i]]})"))
     with np.errstate(over="ignore", invalid="ignore"):
         base = values if to_base is None else to_base(values)
-        far = ~bad.any(axis=1, keepdims=True) & ~(np.abs(base) <= MAX_COORD)  # huge, or overflowed by the axis map
+        far = ~bad.any(axis=1, keepdims=True) & ~(np.abs(base) <= MAX_PLAN_COORD)  # a wrong unit, or overflowed
         for i, j in zip(*np.nonzero(far), strict=True):
             # an axis map mixes a point's columns: name the point (IREDES), or the column itself (CSV)
             label = labels[j] if to_base is None else labels[j].split("/")[0]
-            problems.append((i, j + 1, label, f"coordinate {base[i, j]:.6g} m (base frame) is beyond "
-                                              f"{MAX_COORD:g} m from the boom base: check the unit and origin"))
+            problems.append((i, j + 1, label, f"coordinate {base[i, j]:.6g} m is beyond {MAX_PLAN_COORD:g} m, "
+                                              "no coordinate of any mine: check the unit"))
         bad = bad | far
         length = np.linalg.norm(np.where(bad, 0.0, base)[:, 3:] - np.where(bad, 0.0, base)[:, :3], axis=1)
     short = ~bad.any(axis=1) & (length < min_length)

@@ -27,7 +27,7 @@ from pipeline.geometry.boom_pair import BoomPair
 from pipeline.geometry.kinematics import Boom
 from pipeline.geometry.rig import Rig
 from pipeline.plans.model import COLLAR, DrillPlan
-from pipeline.plans.solutions import CLEARANCE_COLUMNS, INVALID, solution_frame, status_counts
+from pipeline.plans.solutions import CLEARANCE_COLUMNS, INVALID, solution_frame, solved_holes, status_counts
 from pipeline.solvers.base import HoleTargets, Solver, SolveResult
 from pipeline.solvers.hybrid import BoomObstacle, HybridSettings, HybridSolver
 
@@ -82,7 +82,7 @@ def reach_table(plan: DrillPlan, rig: Rig, solvers: list[HybridSolver], method: 
         targets = HoleTargets(plan.poses(mount.boom.preview_depth), mount.boom.preview_depth)
         result = solver.solve(targets, obstacles=parked_others(rig, i))
         results[mount.name] = result
-        t = solution_frame(plan, result, mount.boom.joint_names, method)
+        t = solution_frame(plan, result, mount.boom.joint_names, method, solved_holes(plan, *mount.tool_pose(result.q)))
         t.insert(1, "boom", mount.name)
         boom_c = result.clearances["boom"].detach().cpu().numpy() if "boom" in result.clearances else np.inf
         solved = t["status"] != INVALID

@@ -10,6 +10,7 @@ import re
 
 import numpy as np
 import pandas as pd
+import torch
 
 from pipeline.geometry.collision import SAFETY_KINDS
 from pipeline.plans.model import COORDS, DrillPlan
@@ -18,12 +19,26 @@ from pipeline.solvers.base import SolveResult
 INVALID = "invalid"
 ERROR_COLUMNS = ["start_mm", "preview_mm", "hole_mm", "direction_deg"]
 CLEARANCE_COLUMNS = [f"clearance_{k}_m" for k in SAFETY_KINDS]
+SOLVED_COLUMNS = [f"solved_{c}" for c in COORDS]  # the hole the joints drill, in the plan's frame
 
 
-def solution_frame(plan: DrillPlan, result: SolveResult, joint_names: list[str], method: str) -> pd.DataFrame:
+def solved_holes(plan: DrillPlan, collar: torch.Tensor, direction: torch.Tensor) -> np.ndarray:
+    """``(n, 6)``: the collar and toe the solved joints drill (the tool point, and the planned length along
+    the drilling direction), from rig-frame ``collar`` and ``direction`` ``(n, 3)``, in the plan's frame
+    (:attr:`DrillPlan.navigation`)."""
+    xyz = plan.holes[COORDS].to_numpy(dtype=np.float64)
+    length = np.linalg.norm(xyz[:, 3:] - xyz[:, :3], axis=1, keepdims=True)
+    p, z = collar.detach().cpu().double().numpy(), direction.detach().cpu().double().numpy()
+    rig = np.concatenate([p, p + length * z], axis=1)
+    return rig if plan.navigation is None else plan.navigation.to_plan(rig)
+
+
+def solution_frame(plan: DrillPlan, result: SolveResult, joint_names: list[str], method: str,
+                   solved: np.ndarray | None = None) -> pd.DataFrame:
     """``hole_id``, the joints (SI: rad, m), start / preview / hole-seeking error (mm), direction
     error (deg), the four clearances (m, negative = violated), ``status``, ``method``, ``problem``,
-    then the plan's own extra columns (``hole_type``, ...), carried through.
+    the collar and toe the joints drill in the plan's frame (``solved``, :func:`solved_holes`; columns
+    :data:`SOLVED_COLUMNS`), then the plan's own extra columns (``hole_type``, ...), carried through.
 
     One row per row of the plan, in the plan's order (by line in the file): an invalid row stands
     where it stood, with its own columns and a problem naming its line and column(s)."""
@@ -36,6 +51,8 @@ def solution_frame(plan: DrillPlan, result: SolveResult, joint_names: list[str],
     for kind, col in zip(SAFETY_KINDS, CLEARANCE_COLUMNS, strict=True):
         df[col] = result.clearances[kind].detach().cpu().numpy()
     df["status"], df["method"], df["problem"] = result.status, method, ""
+    if solved is not None:
+        df[SOLVED_COLUMNS] = solved
     extras = holes[[c for c in holes.columns if c not in ("hole_id", *COORDS)]].reset_index(drop=True)
     df = pd.concat([df, extras], axis=1)
     if not plan.problems:
