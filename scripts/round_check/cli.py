@@ -1,5 +1,8 @@
 """The command: read, check, print one JSON object; exit 0 clean, 1 violations (or a clearance that
-cannot be certified), 2 an input that cannot be judged."""
+cannot be certified), 2 an input that cannot be judged.
+
+The JSON names the tunnel checked against (``tunnel``: the horseshoe's width and wall height, or a
+profile's file and vertex count)."""
 
 from __future__ import annotations
 
@@ -278,7 +281,8 @@ def _motion(st, trajectory, spacing_m, levels, given, head, rows=None) -> dict:
     for b in st.booms:
         booms_out[b.name].update(clear[b.name])
     return {
-        "trajectory": str(trajectory), **head, "rig": st.rig, "d_boom_m": st.d_boom, "safety_m": st.safety,
+        "trajectory": str(trajectory), **head, "rig": st.rig, "tunnel": st.tunnel.describe(), "d_boom_m": st.d_boom,
+        "safety_m": st.safety,
         "convention": "clearance = distance - radii - safety distance (boom-boom: distance - radii, against d_boom); "
                       ">= 0 passes",
         "spacing_m": spacing_m, "instants": res.instants, "refined_instants": res.refined,
