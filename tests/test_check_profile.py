@@ -1,8 +1,10 @@
-"""scripts/check_round.py on tunnels of any cross-section (``tunnel=profile tunnel.file=<csv>``): the
-checker's own profile reader refuses each malformed file by name and row; its capsule-profile clearance
-agrees with brute force (dense points on the axis and on the outline) and, on the reference horseshoe
-written as a polyline, with its horseshoe within the chord error; planted trajectories that the horseshoe
-passes hit the box profile's flat roof or sloped floor."""
+"""scripts/check_round.py on tunnels of any cross-section (``tunnel=profile tunnel.file=<csv>``) and on plans
+in their own frame (``navigation.pose`` / ``navigation.points``): the checker's own profile reader refuses
+each malformed file by name and row; its capsule-profile clearance agrees with brute force (dense points on
+the axis and on the outline) and, on the reference horseshoe written as a polyline, with its horseshoe
+within the chord error; planted trajectories that the horseshoe passes hit the box profile's flat roof or
+sloped floor; a plan moved into another frame checks clean only with the navigation that undoes it; the
+points fit recovers a known pose and refuses too few, collinear or badly fitting points."""
 
 import contextlib
 import importlib.util
@@ -308,6 +310,127 @@ def test_the_planned_round_in_the_horseshoe_polyline(small_twin_round):
             h, p = horse["booms"][b]["tunnel_m"][s], poly["booms"][b]["tunnel_m"][s]
             assert abs(h["sampled"] - p["sampled"]) <= SAGITTA + 1e-6, (b, s, h, p)
             assert p["certified"] >= 0
+
+
+# -- navigation: a plan in its own frame ---------------------------------------------------------
+
+POSE = [12.5, -3.25, 1.75, 33.0, 2.5, -1.5]  # x y z (m) yaw pitch roll (deg)
+
+
+def test_the_rotation_order_and_the_transform():
+    nav = cr.settings.read_navigation({"pose": [1.0, 2.0, 3.0, 90.0, 0.0, 0.0], "max_rms_m": 0.02}, PROJECT_ROOT)
+    np.testing.assert_allclose(nav.to_rig(np.array([1.0, 3.0, 3.0])), [1, 0, 0], atol=1e-12)  # rig x = plan y
+    R = cr.navigation.rotation(90, 90, 0)  # Rz(yaw) Ry(pitch): the rig's x axis points down, its y along -x
+    np.testing.assert_allclose(R @ [1, 0, 0], [0, 0, -1], atol=1e-12)
+    np.testing.assert_allclose(R @ [0, 1, 0], [-1, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(cr.navigation.rotation(0, 0, 90) @ [0, 1, 0], [0, 0, 1], atol=1e-12)  # roll about x
+    R = cr.navigation.rotation(*POSE[3:])
+    np.testing.assert_allclose(cr.navigation.angles(R), POSE[3:], atol=1e-12)
+    np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-12)
+
+
+def _to_plan_frame(rig_xyz, pose=POSE):
+    R = cr.navigation.rotation(*pose[3:])
+    return rig_xyz @ R.T + np.asarray(pose[:3])
+
+
+def _plan_in_its_frame(src, dst, pose=POSE):
+    plan = pd.read_csv(src)
+    for end in ("collar", "toe"):
+        cols = [f"{end}_{c}" for c in "xyz"]
+        plan[cols] = _to_plan_frame(plan[cols].to_numpy(float), pose)
+    plan.to_csv(dst, index=False)
+    return dst
+
+
+def _points(path, rig, plan, names=None):
+    names = names or [f"P{i + 1}" for i in range(len(rig))]
+    pd.DataFrame({"point": names, **{f"plan_{c}": plan[:, i] for i, c in enumerate("xyz")},
+                  **{f"rig_{c}": rig[:, i] for i, c in enumerate("xyz")}}).to_csv(path, index=False)
+    return path
+
+
+REFERENCE = np.array([[8.0, 2.6, 1.5], [8.5, -2.6, 2.0], [9.0, 0.3, 5.4], [2.0, 2.4, 3.5], [3.0, -2.5, 0.8]])
+
+
+def test_a_plan_in_its_own_frame_checks_clean_with_its_pose(small_twin_round, tmp_path):
+    tmp, overrides = small_twin_round
+    traj, src = tmp / "small_trajectory.csv", next(o for o in overrides if o.startswith("plan=")).split("=", 1)[1]
+    moved = _plan_in_its_frame(src, tmp_path / "plan_frame.csv")
+    pose = f"navigation.pose=[{','.join(map(str, POSE))}]"
+    rc, report, err = _run(traj, *overrides, pose, "--plan", str(moved))
+    assert rc == 0, (err, report and report["violations"])
+    assert report["navigation"] == {"given": "pose", "pose": POSE}
+    assert max(report["booms"][b]["collar_error_max_mm"] for b in "LR") < 0.1
+    rc, report, _ = _run(traj, *overrides, "--plan", str(moved))  # the same plan taken as the rig frame's
+    assert rc == 1 and report["navigation"]["given"] is None
+    assert sum("mm from its collar" in v for v in report["violations"]) == 6
+    # the pose as exact measured points: the fit gives it back (rms ~ 0)
+    pts = _points(tmp_path / "points.csv", REFERENCE, _to_plan_frame(REFERENCE))
+    rc, report, err = _run(traj, *overrides, f"navigation.points={pts}", "--plan", str(moved))
+    assert rc == 0, (err, report and report["violations"])
+    nav = report["navigation"]
+    assert nav["given"] == "points" and nav["n"] == 5 and nav["rms_m"] < 1e-9 and nav["points"] == str(pts)
+    np.testing.assert_allclose(nav["pose"], POSE, atol=1e-9)
+
+
+@pytest.mark.parametrize("n", [3, 4, 5])
+def test_the_points_fit_recovers_a_known_pose_from_noisy_points(tmp_path, n):
+    rng = np.random.default_rng(n)
+    rig = REFERENCE[:n] + rng.normal(0, 0.002, (n, 3))  # measured from the rig, 2 mm noise
+    plan = _to_plan_frame(REFERENCE[:n])
+    st = rc_settings([f"navigation.points={_points(tmp_path / 'p.csv', rig, plan)}"])
+    nav = st.navigation
+    assert nav.doc["rms_m"] < 0.005 and nav.doc["worst_point"] in [f"P{i + 1}" for i in range(n)]
+    np.testing.assert_allclose(nav.pose()[3:], POSE[3:], atol=0.15)  # degrees
+    # where the holes are (a face 3-8 m ahead), the fitted transform is within a centimetre of the true one
+    face = np.c_[rng.uniform(3, 8, 50), rng.uniform(-2.5, 2.5, 50), rng.uniform(0, 5, 50)]
+    assert np.linalg.norm(nav.to_rig(_to_plan_frame(face)) - face, axis=1).max() < 0.01
+    # noise-free: exact
+    exact = rc_settings([f"navigation.points={_points(tmp_path / 'q.csv', REFERENCE[:n], plan)}"]).navigation
+    np.testing.assert_allclose(exact.pose(), POSE, atol=1e-9)
+    np.testing.assert_allclose(exact.R, cr.navigation.rotation(*POSE[3:]), atol=1e-12)
+
+
+def test_the_points_fit_is_never_a_reflection():
+    rig = REFERENCE[:4]
+    mirrored = rig * [1, -1, 1]  # a mirror image: the best rotation, not the reflection that fits exactly
+    R, _ = cr.navigation.fit(rig, mirrored)
+    assert np.linalg.det(R) == pytest.approx(1.0)
+
+
+def test_navigation_refusals(tmp_path):
+    traj = _csv(tmp_path / "any.csv", [], "boom")
+    plan = _to_plan_frame(REFERENCE)
+    two = _points(tmp_path / "two.csv", REFERENCE[:2], plan[:2])
+    line = np.array([[1.0, 0, 0], [2.0, 0.5, 0.25], [4.0, 1.5, 0.75], [5.0, 2.0, 1.0]])
+    collinear = _points(tmp_path / "line.csv", line, _to_plan_frame(line))
+    off = plan.copy()
+    off[2] += [0.0, 0.0, 0.12]  # P3 measured 12 cm off
+    bad_fit = _points(tmp_path / "off.csv", REFERENCE, off, ["A", "B", "P3", "D", "E"])
+    nocol = tmp_path / "nocol.csv"
+    pd.read_csv(bad_fit).drop(columns=["rig_z"]).to_csv(nocol, index=False)
+    nan = tmp_path / "nan.csv"
+    pd.read_csv(bad_fit).assign(plan_y=["1", "2", "inf", "4", "5"]).to_csv(nan, index=False)
+    for args, needles in (
+            ([f"navigation.points={two}"], [f"navigation.points {two}", "2 point(s); the rigid fit needs at least"]),
+            ([f"navigation.points={collinear}"], [f"navigation.points {collinear}", "lie on one line in the rig"]),
+            ([f"navigation.points={bad_fit}"], [f"navigation.points {bad_fit}", "exceeds navigation.max_rms_m = 0.02 m",
+                                                "worst point 'P3' (row 4)"]),
+            ([f"navigation.points={nocol}"], [f"navigation.points {nocol}", "missing column(s) ['rig_z']"]),
+            ([f"navigation.points={nan}"], [f"navigation.points {nan}", "row 4: plan_y = 'inf' is not a finite"]),
+            ([f"navigation.points={tmp_path / 'none.csv'}"], ["none.csv: no such navigation points file"]),
+            (["navigation.pose=[1,2,3,4,5]"], ["navigation.pose = [1, 2, 3, 4, 5]: expected [x, y, z, yaw, pitch"]),
+            (["navigation.pose=[0,0,0,0,0,0]", f"navigation.points={bad_fit}"], ["give at most one"]),
+            (["navigation.max_rms_m=0"], ["navigation.max_rms_m = 0: expected a positive number"]),
+            (["navigation.no_such=1"], ["settings"])):
+        rc, _, err = _run(traj, *args, "--trajectory-only")
+        assert rc == 2 and "Traceback" not in err, (args, err)
+        for n in needles:
+            assert n in err, (n, err)
+    # the same points pass with a looser limit; the 12 cm point is the worst
+    nav = rc_settings([f"navigation.points={bad_fit}", "navigation.max_rms_m=0.1"]).navigation
+    assert nav.doc["worst_point"] == "P3" and 0.02 < nav.doc["rms_m"] < 0.1
 
 
 @pytest.mark.parametrize("q", [NEAR_THE_FLOOR, CLEAR])

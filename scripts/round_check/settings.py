@@ -1,4 +1,4 @@
-"""The rig, tunnel, safety distances and motion from the same composed config as the stage's.
+"""The rig, tunnel, navigation, safety distances and motion from the same composed config as the stage's.
 
 Hydra's compose API on the project's ``conf/`` with the stage's own command-line overrides
 (``rig=twin motion.joint_speeds.q1=7.5 ...``): Hydra is the settings reader, nothing of ``pipeline``
@@ -9,7 +9,7 @@ its kind), each a file relative to the project root (:meth:`BoomModel.calibrated
 
 The tunnel by its ``kind``: ``horseshoe`` (``width``, ``wall_height``; a node with ``width`` and no kind is
 one), or ``profile`` (``tunnel.file``, a CSV relative to the project root, read and validated by
-:mod:`.profile`).
+:mod:`.profile`). The navigation node gives the plan frame's transform (:mod:`.navigation`).
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ import numpy as np
 from .boom import BoomModel
 from .distance import Horseshoe
 from .errors import InputError
+from .navigation import Navigation, read_navigation
 from .profile import Profile, read_profile
 
 CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
@@ -49,10 +50,13 @@ class Settings:
     rate_m_per_s: float  # penetration
     retract_m_per_s: float
     tunnel: Horseshoe | Profile | None = None  # what the sweep measures against (None: the horseshoe above)
+    navigation: Navigation | None = None  # the plan frame's transform (None: the rig frame)
 
     def __post_init__(self):
         if self.tunnel is None:
             self.tunnel = Horseshoe(self.half_width, self.wall_height)
+        if self.navigation is None:
+            self.navigation = Navigation()
 
     def drill_times(self, length: np.ndarray) -> np.ndarray:
         """``(n, 3)``: collaring, drilling and retraction seconds of holes of ``length`` (spec section 7)."""
@@ -175,7 +179,7 @@ def settings(overrides: list[str]) -> Settings:
     return Settings(
         rig=str(rig.get("name")), d_boom=_number(rig, "d_boom", "rig", positive=False), booms=booms,
         half_width=shape.half_width if horseshoe else None, wall_height=shape.wall_height if horseshoe else None,
-        tunnel=shape,
+        tunnel=shape, navigation=read_navigation(cfg.get("navigation"), CONF_DIR.parent),
         safety={k: _number(safety, k, "safety", positive=False) for k in ("self", "wall", "ground", "arch")},
         collaring_s=_number(drilling, "collaring_s", "motion.drilling", positive=False),
         rate_m_per_s=_number(drilling, "rate_m_per_min", "motion.drilling") / 60.0,
