@@ -9,7 +9,9 @@ Reads ``<stem>_trajectory.csv`` with its siblings ``<stem>_round.csv`` and ``<st
 plan the JSON names, and ``<stem>_actions.csv`` / ``<stem>_interlocks.csv`` when there (the executed
 round, spec section 8; ``--execute N`` adds N random draws and the fixed ones, ``--draws F`` a draws
 file's); ``--realised`` checks an executed round's set (``<stem>_executed_*``); the settings are
-composed from ``conf/`` with the stage's own overrides. Imports
+composed from ``conf/`` with the stage's own overrides (``tunnel=profile tunnel.file=<csv>``: a tunnel of
+any cross-section; ``navigation.pose=[...]`` or ``navigation.points=<csv>``: the plan in its own frame,
+taken into the rig frame before its holes are matched). Imports
 nothing of ``pipeline``: the code is :mod:`round_check` beside this file. Prints one JSON object;
 exit 0 clean, 1 violations (or a clearance that cannot be certified), 2 input errors.
 """
@@ -21,12 +23,25 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # round_check/, beside this file
 
-from round_check import actions, boom, distance, episodes, execute, executed, files, realised, settings, sweep  # noqa: E402
+from round_check import (  # noqa: E402
+    actions,
+    boom,
+    distance,
+    episodes,
+    execute,
+    executed,
+    files,
+    navigation,
+    profile,
+    realised,
+    settings,
+    sweep,
+)
 from round_check.cli import check, main  # noqa: E402
 from round_check.errors import InputError  # noqa: E402
 
 __all__ = ["InputError", "actions", "boom", "check", "distance", "episodes", "execute", "executed", "files", "main",
-           "realised", "settings", "sweep"]
+           "navigation", "profile", "realised", "settings", "sweep"]
 
 if __name__ == "__main__":
     sys.exit(main())

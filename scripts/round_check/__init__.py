@@ -4,9 +4,12 @@ certified time sweep), sharing nothing with ``pipeline`` but the composed settin
 
 Modules, one job each: :mod:`.errors` (input errors, exit 2), :mod:`.boom` (a boom from its YAML:
 kinematics, bodies, lever-arm bounds), :mod:`.distance` (segment-segment and horseshoe distances),
-:mod:`.settings` (the rig, tunnel, safety and motion from the composed config), :mod:`.files` (reading
-and validating the trajectory, round table, round JSON and plan), :mod:`.sweep` (certified clearances
-over time), :mod:`.rules` (row checks: limits, speeds, park, holes, makespan), :mod:`.actions`,
-:mod:`.execute`, :mod:`.episodes`, :mod:`.executed` (the executed round under drawn durations, and a
-draws file), :mod:`.realised` (a realised set at its own times), :mod:`.cli` (the command).
+:mod:`.profile` (a tunnel of any cross-section: the profile CSV read and validated, a capsule's clearance
+to each of its surface kinds), :mod:`.navigation` (the plan frame's transform: a pose given, or the rigid
+fit of measured points), :mod:`.settings` (the rig, tunnel, navigation, safety and motion from the
+composed config), :mod:`.files` (reading and validating the trajectory, round table, round JSON and
+plan), :mod:`.sweep` (certified clearances over time), :mod:`.rules` (row checks: limits, speeds, park,
+holes, makespan), :mod:`.actions`, :mod:`.execute`, :mod:`.episodes`, :mod:`.executed` (the executed
+round under drawn durations, and a draws file), :mod:`.realised` (a realised set at its own times),
+:mod:`.cli` (the command).
 """

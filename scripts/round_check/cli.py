@@ -1,9 +1,14 @@
 """The command: read, check, print one JSON object; exit 0 clean, 1 violations (or a clearance that
-cannot be certified), 2 an input that cannot be judged."""
+cannot be certified), 2 an input that cannot be judged.
+
+The JSON names the tunnel checked against (``tunnel``: the horseshoe's width and wall height, or a
+profile's file and vertex count) and, where a plan is checked, the navigation that took it into the rig
+frame (``navigation``: the pose given, or the points fit's rms, worst point and pose)."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -63,6 +68,14 @@ def _plan_path(summary: dict, path: Path, plan) -> Path:
         raise InputError(f"{path}: no `plan` field naming the drill plan: give --plan")
     p = Path(p)
     return p if p.is_absolute() else CONF_DIR.parent / p  # the stage resolves a relative plan in the checkout
+
+
+def _in_rig_frame(plan, nav):
+    """The plan's collars and toes in the rig frame: with ``navigation`` set, the plan is in its own frame and
+    the checker's transform (:mod:`round_check.navigation`) takes it over; without, as read."""
+    if nav.doc.get("given") is None:
+        return plan
+    return dataclasses.replace(plan, collar=nav.to_rig(plan.collar), toe=nav.to_rig(plan.toe))
 
 
 def _minima(values: np.ndarray, mask) -> float | None:
@@ -183,7 +196,7 @@ def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spa
     rows = read_trajectory(trajectory, {b.name: b.model.joint_names for b in st.booms})
     table = read_round_table(round_csv, realised)
     plan_path = _plan_path(doc, summary_path, plan)
-    holes_plan = read_plan(plan_path)
+    holes_plan = _in_rig_frame(read_plan(plan_path), st.navigation)
     depth = max((b.model.preview_depth for b in st.booms), default=0.0) or 1.0
     collar_tol = collar_tol_mm * 1e-3
     # the matching angle: the direction error that moves the preview point (paper 000 eq. 3) by the collar tolerance
@@ -217,6 +230,7 @@ def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spa
                               "factor_per_hole": hole_stats["_factors"]["per_hole"],
                               "interrupted": hole_stats["_holes"].pop("interrupted")}
     report.update({"round": str(round_csv), "summary": str(summary_path), "plan": str(plan_path),
+                   "navigation": st.navigation.doc,
                    "collar_tol_mm": collar_tol_mm, "angle_tol_deg": math.degrees(angle_tol),
                    "json_makespan_s": float(doc["makespan_s"]), "holes": hole_stats["_holes"]})
     return report
@@ -278,7 +292,8 @@ def _motion(st, trajectory, spacing_m, levels, given, head, rows=None) -> dict:
     for b in st.booms:
         booms_out[b.name].update(clear[b.name])
     return {
-        "trajectory": str(trajectory), **head, "rig": st.rig, "d_boom_m": st.d_boom, "safety_m": st.safety,
+        "trajectory": str(trajectory), **head, "rig": st.rig, "tunnel": st.tunnel.describe(), "d_boom_m": st.d_boom,
+        "safety_m": st.safety,
         "convention": "clearance = distance - radii - safety distance (boom-boom: distance - radii, against d_boom); "
                       ">= 0 passes",
         "spacing_m": spacing_m, "instants": res.instants, "refined_instants": res.refined,

@@ -1,5 +1,7 @@
 """Distances, batched over any leading shape: clamped segment-segment distance (any dimension) and the
-horseshoe tunnel's signed distances (spec section 2), exact over a whole segment.
+horseshoe tunnel's signed distances (spec section 2), exact over a whole segment. A tunnel of any
+cross-section (``tunnel=profile``) is :mod:`.profile`'s; :class:`Horseshoe` and its :class:`~.profile.Profile`
+answer the sweep alike (``clearances(p0, p1)``, ``describe()``).
 
 Tunnel convention (the YAML's and the spec's, in the rig frame's (y, z) plane): floor z = 0, walls
 |y| = width/2 for z in [0, wall_height], arch the upper semicircle of radius width/2 centred at
@@ -9,6 +11,8 @@ minus its radius minus the surface's safety distance, and it passes when it is >
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -91,3 +95,18 @@ def segment_tunnel(p0, p1, half_width: float, wall_height: float) -> np.ndarray:
     pts = a[..., None, :] + us[..., None] * d[..., None, :]
     dist = point_distances(pts[..., 0], pts[..., 1], r, h)
     return np.stack([dist[k].min(-1) for k in SURFACES], -1)
+
+
+@dataclass
+class Horseshoe:
+    """The horseshoe drift of ``tunnel.kind: horseshoe`` (a tunnel node with ``width`` and no kind is one)."""
+
+    half_width: float
+    wall_height: float
+
+    def clearances(self, p0, p1) -> np.ndarray:
+        """``(..., 3)``: :func:`segment_tunnel` of the axes [p0, p1], :data:`SURFACES` order."""
+        return segment_tunnel(p0, p1, self.half_width, self.wall_height)
+
+    def describe(self) -> dict:
+        return {"kind": "horseshoe", "width": 2 * self.half_width, "wall_height": self.wall_height}

@@ -1,4 +1,4 @@
-"""The rig, tunnel, safety distances and motion from the same composed config as the stage's.
+"""The rig, tunnel, navigation, safety distances and motion from the same composed config as the stage's.
 
 Hydra's compose API on the project's ``conf/`` with the stage's own command-line overrides
 (``rig=twin motion.joint_speeds.q1=7.5 ...``): Hydra is the settings reader, nothing of ``pipeline``
@@ -6,6 +6,10 @@ is imported. A rig boom whose ``boom:`` equals the composed ``boom.name`` uses t
 node (so ``boom.*`` overrides reach it); any other reads ``conf/boom/<name>.yaml``. A calibrated model
 goes on top as the stage puts it: ``boom_models.<name>`` (that boom), else ``boom_model`` (every boom of
 its kind), each a file relative to the project root (:meth:`BoomModel.calibrated`).
+
+The tunnel by its ``kind``: ``horseshoe`` (``width``, ``wall_height``; a node with ``width`` and no kind is
+one), or ``profile`` (``tunnel.file``, a CSV relative to the project root, read and validated by
+:mod:`.profile`). The navigation node gives the plan frame's transform (:mod:`.navigation`).
 """
 
 from __future__ import annotations
@@ -17,7 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from .boom import BoomModel
+from .distance import Horseshoe
 from .errors import InputError
+from .navigation import Navigation, read_navigation
+from .profile import Profile, read_profile
 
 CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 
@@ -36,12 +43,20 @@ class Settings:
     rig: str
     d_boom: float
     booms: list[RigBoom]
-    half_width: float
-    wall_height: float
+    half_width: float | None  # the horseshoe's (None for a profile)
+    wall_height: float | None
     safety: dict[str, float]  # self, wall, ground, arch (m)
     collaring_s: float
     rate_m_per_s: float  # penetration
     retract_m_per_s: float
+    tunnel: Horseshoe | Profile | None = None  # what the sweep measures against (None: the horseshoe above)
+    navigation: Navigation | None = None  # the plan frame's transform (None: the rig frame)
+
+    def __post_init__(self):
+        if self.tunnel is None:
+            self.tunnel = Horseshoe(self.half_width, self.wall_height)
+        if self.navigation is None:
+            self.navigation = Navigation()
 
     def drill_times(self, length: np.ndarray) -> np.ndarray:
         """``(n, 3)``: collaring, drilling and retraction seconds of holes of ``length`` (spec section 7)."""
@@ -68,6 +83,19 @@ def _number(node: dict, key: str, where: str, positive: bool = True) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or (positive and v <= 0):
         raise InputError(f"settings: {where}.{key} = {v!r}: expected a {'positive ' if positive else ''}number")
     return float(v)
+
+
+def _tunnel(node) -> Horseshoe | Profile:
+    """The composed tunnel node by its kind."""
+    if not isinstance(node, dict):
+        raise InputError(f"settings: tunnel = {node!r}: expected a tunnel node (tunnel=horseshoe | profile ...)")
+    kind = node.get("kind", "horseshoe" if "width" in node else None)
+    if kind == "horseshoe":
+        return Horseshoe(0.5 * _number(node, "width", "tunnel"), _number(node, "wall_height", "tunnel"))
+    if kind == "profile":
+        return read_profile(node.get("file"), node.get("max_vertices", 2000), CONF_DIR.parent)
+    raise InputError(f"settings: tunnel.kind = {kind!r}: expected horseshoe (width, wall_height) or profile "
+                     "(tunnel.file)")
 
 
 def _boom_node(name: str, composed: dict) -> tuple[dict, str]:
@@ -146,9 +174,12 @@ def settings(overrides: list[str]) -> Settings:
     names = [b.name for b in booms]
     if not booms or len(set(names)) != len(names):
         raise InputError(f"settings: rig {rig.get('name')!r}: booms {names}: expected one or more, each named once")
+    shape = _tunnel(tunnel)
+    horseshoe = isinstance(shape, Horseshoe)
     return Settings(
         rig=str(rig.get("name")), d_boom=_number(rig, "d_boom", "rig", positive=False), booms=booms,
-        half_width=0.5 * _number(tunnel, "width", "tunnel"), wall_height=_number(tunnel, "wall_height", "tunnel"),
+        half_width=shape.half_width if horseshoe else None, wall_height=shape.wall_height if horseshoe else None,
+        tunnel=shape, navigation=read_navigation(cfg.get("navigation"), CONF_DIR.parent),
         safety={k: _number(safety, k, "safety", positive=False) for k in ("self", "wall", "ground", "arch")},
         collaring_s=_number(drilling, "collaring_s", "motion.drilling", positive=False),
         rate_m_per_s=_number(drilling, "rate_m_per_min", "motion.drilling") / 60.0,

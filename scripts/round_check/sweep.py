@@ -9,7 +9,10 @@ instants lies inside one row interval of every boom).
 A certified floor over an interval follows from 1-Lipschitz distances: a distance between two bodies
 changes by at most the sum of their travels, a body's distance to a tunnel surface by at most its own
 travel (valid while the body stays at least that travel inside the profile, which every clearance
-above the safety distance implies; otherwise no floor is claimed). With clearances c0, c1 at the ends
+above the safety distance implies; otherwise no floor is claimed). That holds for the horseshoe and for
+a profile of any shape alike (:mod:`.profile`: inside, a kind's distance is the distance from the axis
+to that kind's segments, a distance to a set; the least over the kinds is the distance to the outline,
+so an axis that far inside cannot leave it within that travel). With clearances c0, c1 at the ends
 and travel tau over the interval, ``c(t) >= max(c0 - tau s, c1 - tau (1 - s))``, whose least value is
 ``min(c0, c1, (c0 + c1 - tau) / 2)``. Where that floor is short of the requirement (< 0) and the two
 samples are not, the interval is split (``split`` parts, ``levels`` times) and judged again.
@@ -25,7 +28,7 @@ from itertools import combinations
 
 import numpy as np
 
-from .distance import SURFACES, segment_distance, segment_tunnel
+from .distance import SURFACES, segment_distance
 from .files import BoomRows
 from .settings import Settings
 
@@ -109,7 +112,7 @@ class Sweep:
                 if body.skip_end > 0:  # the front of the feed works at the face: its checked part ends short
                     length = np.linalg.norm(s1 - s0, axis=-1, keepdims=True)
                     s1 = s0 + np.clip(1.0 - body.skip_end / np.maximum(length, 1e-12), 0.0, 1.0) * (s1 - s0)
-                tun = segment_tunnel(s0, s1, st.half_width, st.wall_height)
+                tun = st.tunnel.clearances(s0, s1)  # the horseshoe's or the profile's, per surface kind
                 cols += [tun[:, k] - body.radius - st.safety[s] for k, s in enumerate(SURFACES)]
         for a, c in self.pairs:
             ma, mc, Pa, Pc = st.booms[a].model, st.booms[c].model, pts[a], pts[c]
