@@ -414,7 +414,7 @@ def test_navigation_refusals(tmp_path):
     pd.read_csv(bad_fit).assign(plan_y=["1", "2", "inf", "4", "5"]).to_csv(nan, index=False)
     for args, needles in (
             ([f"navigation.points={two}"], [f"navigation.points {two}", "2 point(s); the rigid fit needs at least"]),
-            ([f"navigation.points={collinear}"], [f"navigation.points {collinear}", "lie on one line in the rig"]),
+            ([f"navigation.points={collinear}"], [f"navigation.points {collinear}", "lie on one line as measured"]),
             ([f"navigation.points={bad_fit}"], [f"navigation.points {bad_fit}", "exceeds navigation.max_rms_m = 0.02 m",
                                                 "worst point 'P3' (row 4)"]),
             ([f"navigation.points={nocol}"], [f"navigation.points {nocol}", "missing column(s) ['rig_z']"]),

@@ -381,7 +381,7 @@ def test_one_row_with_huge_finite_coordinates_is_a_row_problem(tmp_path, huge):
     plan = read_csv_plan(tmp_path / "p.csv")
     assert plan.holes["hole_id"].tolist() == ["A1", "A3"]
     (p,) = plan.problems
-    assert (p.row, p.hole_id, p.column) == (3, "A2", "collar_x") and "beyond 10000 m" in p.message
+    assert (p.row, p.hole_id, p.column) == (3, "A2", "collar_x") and "beyond 1e+08 m" in p.message
     assert torch.isfinite(plan.poses(3.3)).all()
 
 

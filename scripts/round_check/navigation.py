@@ -10,9 +10,9 @@ plan's z, y, x axes, in that product order); a plan point p is ``R^T (p - t)`` i
 from the project root): the same reference points in the plan frame and measured from the rig. The
 pose is the least-squares rigid fit ``plan ~ R rig + t`` (no scale), by the SVD of the centred points'
 cross-covariance with the reflection fixed (Kabsch). Refused (:class:`InputError`): fewer than three
-points, points on one line (in either frame every point within ``max_rms_m`` of one line: the rotation
-about that line is not fixed by them), or an rms residual above ``navigation.max_rms_m`` (naming the
-worst point).
+points, points on one line (every measured point within ``navigation.min_off_line_m`` of one line: the
+rotation about that line is not fixed by them; the stage's own rule), or an rms residual above
+``navigation.max_rms_m`` (naming the worst point).
 """
 
 from __future__ import annotations
@@ -92,6 +92,9 @@ def read_navigation(node, root: Path) -> Navigation:
     pose, points, limit = node.get("pose"), node.get("points"), node.get("max_rms_m")
     if not _finite(limit) or limit <= 0:
         raise InputError(f"settings: navigation.max_rms_m = {limit!r}: expected a positive number")
+    spread = node.get("min_off_line_m", 0.2)
+    if not _finite(spread) or spread <= 0:
+        raise InputError(f"settings: navigation.min_off_line_m = {spread!r}: expected a positive number")
     if pose is not None and points is not None:
         raise InputError(f"settings: navigation.pose = {pose!r} and navigation.points = {points!r}: give at most one")
     if pose is not None:
@@ -101,11 +104,11 @@ def read_navigation(node, root: Path) -> Navigation:
         pose = [float(v) for v in pose]
         return Navigation(rotation(*pose[3:]), np.array(pose[:3]), {"given": "pose", "pose": pose})
     if points is not None:
-        return _from_points(points, float(limit), root)
+        return _from_points(points, float(limit), float(spread), root)
     return Navigation()
 
 
-def _from_points(value, limit: float, root: Path) -> Navigation:
+def _from_points(value, limit: float, min_off_line: float, root: Path) -> Navigation:
     from .files import _numbers, _require, _table
 
     if not isinstance(value, str) or not value:
@@ -123,12 +126,13 @@ def _from_points(value, limit: float, root: Path) -> Navigation:
     if n < 3:
         raise InputError(f"{where}: {n} point(s); the rigid fit needs at least three, not on one line")
     plan, rig = xyz[:, :3], xyz[:, 3:]
-    for frame, p in (("rig", rig), ("plan", plan)):
-        spread = off_line(p)
-        if spread <= limit:
-            raise InputError(f"{where}: the {n} points (rows 2-{n + 1}) lie on one line in the {frame} frame (every "
-                             f"point within {spread:.3g} m of it, navigation.max_rms_m = {limit:g} m): the rotation "
-                             "about that line is not fixed by them; measure a point off that line")
+    # the stage's rule, so that a pose it accepted is one the checker can judge: the measured points must
+    # not all lie within navigation.min_off_line_m of one line
+    spread = off_line(rig)
+    if spread < min_off_line:
+        raise InputError(f"{where}: the {n} points (rows 2-{n + 1}) lie on one line as measured (every point within "
+                         f"{spread:.3g} m of it, navigation.min_off_line_m = {min_off_line:g} m): the rotation "
+                         "about that line is not fixed by them; measure a point off that line")
     R, t = fit(rig, plan)
     res = np.linalg.norm(rig @ R.T + t - plan, axis=1)
     rms = float(np.sqrt(np.mean(res ** 2)))
