@@ -175,3 +175,14 @@ def test_fixed_factors_and_stalls_in_every_draw():
     np.testing.assert_array_equal(plain.factors[:200, [0, 2]][~stalled], rand[~stalled])  # same seeded draws
     with pytest.raises(ConfigError, match="stall_p"):
         parse_execution({"stall_p": 1.5})
+
+
+@pytest.mark.slow
+def test_a_navigation_other_than_the_planned_one_is_refused_before_any_work(planned, tmp_path):
+    """The round's joints drill the plan where its navigation put the rig: executing it with another pose (or a
+    pose where it was planned with none) would drill the plan somewhere else."""
+    with pytest.raises(ConfigError, match=r"navigation: .*small_round.json was planned with the rig at "
+                                          r"\[0.0, 0.0, 0.0, 0.0, 0.0, 0.0\] \(\[x, y, z, yaw, pitch, roll\], none\), "
+                                          r"this run puts it at \[0.5, 0.0, 0.0, 0.0, 0.0, 0.0\]"):
+        run(planned, "navigation.pose=[0.5,0,0,0,0,0]", folder=tmp_path)
+    assert not any(tmp_path.iterdir())  # nothing written
