@@ -313,6 +313,35 @@ def surface_gradient(kind, y, z, r, h):
     return (-y / radial, -(z - h) / radial) if above else (corner_dy, corner_dz)
 
 
+@njit(cache=True)
+def _closest_params(a, b, c, e, f):
+    """Where the closest points of two segments ``p1 + s d1`` and ``p2 + t d2`` lie (``s, t`` in [0, 1]), from
+    ``a = d1.d1, b = d1.d2, c = d1.r, e = d2.d2, f = d2.r`` (``r = p1 - p2``): clamped (Ericson 5.1.9), the
+    branches of :func:`pipeline.geometry.collision.segment_distance`, for 3-D segments and the plane alike."""
+    eps = 1e-12
+    denom = a * e - b * b
+    a_ok, e_ok = a > eps, e > eps
+    a_safe = a if a_ok else 1.0
+    e_safe = e if e_ok else 1.0
+    s = (b * f - c * e) / denom if denom > 64 * EPS64 * a * e else 0.0
+    s = min(max(s, 0.0), 1.0)
+    t = (b * s + f) / e_safe
+    if t < 0:
+        s = min(max(-c / a_safe, 0.0), 1.0)
+    elif t > 1:
+        s = min(max((b - c) / a_safe, 0.0), 1.0)
+    t = min(max(t, 0.0), 1.0)
+    if a_ok and not e_ok:
+        s = min(max(-c / a_safe, 0.0), 1.0)
+    if not e_ok:
+        t = 0.0
+    if not a_ok and e_ok:
+        t = min(max(f / e_safe, 0.0), 1.0)
+    if not a_ok:
+        s = 0.0
+    return s, t
+
+
 # ---------------------------------------------------------------------------------------------- profile
 PROFILE_TIE = 1e-9  # as pipeline.geometry.profile.TIE
 # A tunnel of any cross-section (pipeline.geometry.profile.Profile): ``outline (segments, 7)`` holds each
@@ -358,35 +387,11 @@ def _nearest_of_kinds(y, z, outline, D, SEG):
 def _segment_distance_2d(ay, az, by, bz, outline, i):
     """Clamped distance between segment (ay, az)-(by, bz) and outline segment ``i``, and where it is
     reached along the first: the branches of :func:`segment_distance` in the plane."""
-    eps = 1e-12
     d1y, d1z = by - ay, bz - az
     d2y, d2z = outline[i, 2] - outline[i, 0], outline[i, 3] - outline[i, 1]
     ry, rz = ay - outline[i, 0], az - outline[i, 1]
-    a = d1y * d1y + d1z * d1z
-    e = d2y * d2y + d2z * d2z
-    f = d2y * ry + d2z * rz
-    c = d1y * ry + d1z * rz
-    b = d1y * d2y + d1z * d2z
-    denom = a * e - b * b
-    a_ok, e_ok = a > eps, e > eps
-    a_safe = a if a_ok else 1.0
-    e_safe = e if e_ok else 1.0
-    s = (b * f - c * e) / denom if denom > 64 * EPS64 * a * e else 0.0
-    s = min(max(s, 0.0), 1.0)
-    t = (b * s + f) / e_safe
-    if t < 0:
-        s = min(max(-c / a_safe, 0.0), 1.0)
-    elif t > 1:
-        s = min(max((b - c) / a_safe, 0.0), 1.0)
-    t = min(max(t, 0.0), 1.0)
-    if a_ok and not e_ok:
-        s = min(max(-c / a_safe, 0.0), 1.0)
-    if not e_ok:
-        t = 0.0
-    if not a_ok and e_ok:
-        t = min(max(f / e_safe, 0.0), 1.0)
-    if not a_ok:
-        s = 0.0
+    s, t = _closest_params(d1y * d1y + d1z * d1z, d1y * d2y + d1z * d2z, d1y * ry + d1z * rz,
+                           d2y * d2y + d2z * d2z, d2y * ry + d2z * rz)
     gy = (ay + s * d1y) - (outline[i, 0] + t * d2y)
     gz = (az + s * d1z) - (outline[i, 1] + t * d2z)
     return math.sqrt(gy * gy + gz * gz), s
@@ -470,35 +475,12 @@ def _ends(F, end_frame, end_along, E):
 def segment_distance(p1, q1, p2, q2):
     """Clamped segment-segment distance ``(d, s, t)`` (Ericson 5.1.9), the same branches as
     :func:`pipeline.geometry.collision.segment_distance`."""
-    eps = 1e-12
     d1 = q1 - p1
     d2 = q2 - p2
     rr = p1 - p2
-    a = d1[0] * d1[0] + d1[1] * d1[1] + d1[2] * d1[2]
-    e = d2[0] * d2[0] + d2[1] * d2[1] + d2[2] * d2[2]
-    f = d2[0] * rr[0] + d2[1] * rr[1] + d2[2] * rr[2]
-    c = d1[0] * rr[0] + d1[1] * rr[1] + d1[2] * rr[2]
-    b = d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]
-    denom = a * e - b * b
-    a_ok, e_ok = a > eps, e > eps
-    a_safe = a if a_ok else 1.0
-    e_safe = e if e_ok else 1.0
-    s = (b * f - c * e) / denom if denom > 64 * EPS64 * a * e else 0.0
-    s = min(max(s, 0.0), 1.0)
-    t = (b * s + f) / e_safe
-    if t < 0:
-        s = min(max(-c / a_safe, 0.0), 1.0)
-    elif t > 1:
-        s = min(max((b - c) / a_safe, 0.0), 1.0)
-    t = min(max(t, 0.0), 1.0)
-    if a_ok and not e_ok:
-        s = min(max(-c / a_safe, 0.0), 1.0)
-    if not e_ok:
-        t = 0.0
-    if not a_ok and e_ok:
-        t = min(max(f / e_safe, 0.0), 1.0)
-    if not a_ok:
-        s = 0.0
+    s, t = _closest_params(d1[0] * d1[0] + d1[1] * d1[1] + d1[2] * d1[2], d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2],
+                           d1[0] * rr[0] + d1[1] * rr[1] + d1[2] * rr[2], d2[0] * d2[0] + d2[1] * d2[1] + d2[2] * d2[2],
+                           d2[0] * rr[0] + d2[1] * rr[1] + d2[2] * rr[2])
     g0 = (p1[0] + s * d1[0]) - (p2[0] + t * d2[0])
     g1 = (p1[1] + s * d1[1]) - (p2[1] + t * d2[1])
     g2 = (p1[2] + s * d1[2]) - (p2[2] + t * d2[2])

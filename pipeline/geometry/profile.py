@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from pipeline.core.csv_input import read_text_csv
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.geometry.collision import segment_distance
 from pipeline.geometry.rotations import safe_norm
@@ -48,17 +49,7 @@ def read_profile_csv(path: str | Path, max_vertices: int = MAX_VERTICES) -> tupl
     profile CSV; every fault names the file and the row (the header is row 1)."""
     import pandas as pd
 
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such tunnel profile (tunnel.file)")
-    try:
-        df = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
-        raise InputError(f"{path}: not a readable CSV tunnel profile ({' '.join(str(e).split())})") from None
-    df.columns = [str(c).strip().lower() for c in df.columns]
-    missing = [c for c in ("y", "z", "surface") if c not in df.columns]
-    if missing:
-        raise InputError(f"{path}: tunnel profile without column(s) {missing}; expected y, z, surface")
+    df = read_text_csv(path, "tunnel profile (tunnel.file)", ["y", "z", "surface"], lower=True)
     if not 3 <= len(df) <= max_vertices:
         raise InputError(f"{path}: {len(df)} vertices; a tunnel profile needs 3 to tunnel.max_vertices = "
                          f"{max_vertices}")

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.core.csv_input import read_text_csv
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.core.settings import rule
 from pipeline.plans.model import COORDS, MAX_COORD, DrillPlan
@@ -106,16 +107,7 @@ def pose_from_angles(pose) -> RigPose:
 def read_points(path: Path) -> tuple[list[str], np.ndarray, np.ndarray]:
     """Names, plan-frame points ``(n, 3)`` and rig-frame points ``(n, 3)`` of a reference-point file; every
     fault names the file and the row (the header is row 1)."""
-    if not path.is_file():
-        raise InputError(f"{path}: no such reference-point file (navigation.points)")
-    try:
-        df = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
-        raise InputError(f"{path}: not a readable CSV of reference points ({' '.join(str(e).split())})") from None
-    df.columns = [str(c).strip() for c in df.columns]
-    missing = [c for c in POINT_COLUMNS if c not in df.columns]
-    if missing:
-        raise InputError(f"{path}: reference points without column(s) {missing}; expected {POINT_COLUMNS}")
+    df = read_text_csv(path, "reference-point file (navigation.points)", POINT_COLUMNS)
     if len(df) > MAX_POINTS:
         raise InputError(f"{path}: {len(df)} reference points; at most {MAX_POINTS}")
     names = [str(v).strip() for v in df["point"]]
