@@ -88,6 +88,8 @@ def run(cfg: DictConfig) -> dict:
                             model_s.activation).to(device)
     run_cfg = {"method": as_dict(OmegaConf.select(cfg, settings.method_key)),
                **select_params(as_dict(cfg), PARAM_KEYS)}
+    if safety.tunnel.kind == "profile":  # the drift the penalties keep from is the file's content, not its name
+        run_cfg["tunnel_profile_md5"] = safety.tunnel.md5
     digest = training_digest(_digest_config(run_cfg, str(device)), [path for path, _ in data.files.values()])
     run_dir = models_dir / f".{method.name}.run-{digest[:12]}"  # private to this training (config, data, code)
     resume = load_training_state(run_dir / RESUME_FILE, digest) if runtime.resume else None

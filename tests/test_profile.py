@@ -221,3 +221,56 @@ def test_compiled_profile_clearances_and_gradients_are_the_torch_ones(jumbo8, na
     for i, k in enumerate(("self", *SURFACES)):
         np.testing.assert_allclose(C[:, i], values[k].numpy(), rtol=0, atol=1e-12)
         np.testing.assert_allclose(G[:, i], grads[k].numpy(), rtol=0, atol=1e-10)
+
+
+# --- the rest of the stack reads the profile --------------------------------------------------------------
+
+def _inside_less(points: np.ndarray, profile: Profile, inset: float) -> np.ndarray:
+    """(y, z) points inside the polygon (winding number) and at least ``inset`` from every segment: numpy."""
+    all_segments = profile.segments
+    return _inside(points, profile) & (_point_to_segments(points, all_segments) >= inset - 1e-9)
+
+
+@pytest.mark.parametrize("name", ["d_5x5.csv", "box_5.5x4.5.csv", "three_centred_6x5.5.csv"])
+def test_the_face_designer_designs_a_drillable_face_for_a_profile(jumbo8, name):
+    """Every hole type, every collar inside the profile less the 0.2 m inset (a second inside rule), lifters on
+    the floor as it runs (the box's floor falls 2 % to the right), contour holes looking out of the drift."""
+    from pipeline.plans.demo_face import demo_face
+
+    safety = build_safety(jumbo8, profile_node(name), SAFETY)
+    holes = demo_face(safety=safety).holes
+    assert set(holes["hole_type"]) == {"cut", "relief", "stoping", "lifter", "contour"} and len(holes) >= 50
+    collars = holes[["collar_y", "collar_z"]].to_numpy()
+    assert _inside_less(collars, safety.tunnel, 0.2).all()
+    floor = _segments_of(safety.tunnel, SURFACES.index("ground"))
+    lifters = holes[holes["hole_type"] == "lifter"][["collar_y", "collar_z"]].to_numpy()
+    assert np.allclose(_point_to_segments(lifters, floor), _point_to_segments(lifters[:1], floor)[0], atol=1e-6)
+    contour = holes[holes["hole_type"] == "contour"]
+    toes = contour[["toe_y", "toe_z"]].to_numpy()
+    assert (~_inside_less(toes, safety.tunnel, 0.0)).mean() > 0.9  # look-out: their toes end beyond the profile
+
+
+@pytest.mark.slow
+def test_a_study_in_a_profile_drift_draws_its_holes_there_and_trains(tmp_path, make_cfg):
+    """generate and train (tiny) with tunnel=profile: the training holes and test groups lie in the box
+    profile less the inset (a second inside rule), their feed beams clear of it; the network trains against
+    that drift's penalties (its MLflow run logs the profile's collision counts)."""
+    from mlflow.tracking import MlflowClient
+
+    from pipeline import generate, train
+    from pipeline.data.hole_sets import read_hole_poses
+
+    over = ["tunnel=profile", f"tunnel.file={PROFILES / 'box_5.5x4.5.csv'}", "train.steps=60"]
+    generate.run(make_cfg(tmp_path, *over))
+    profile = Profile.from_file(PROFILES / "box_5.5x4.5.csv")
+    holes = tmp_path / "data" / "holes"
+    for name in ("train.parquet", "test_group_1.parquet"):
+        _, pose = read_hole_poses(holes, name)
+        assert _inside_less(pose[:, 1:3].numpy(), profile, 0.2).all(), name
+        assert (pose[:, 1:3].numpy()[:, 1] > 3.9).any()  # under the box's roof corners too, not only a horseshoe
+    train.run(make_cfg(tmp_path, *over, "method=cuikm"))
+    client = MlflowClient(f"sqlite:///{tmp_path}/mlflow.db")
+    (run,) = client.search_runs([client.get_experiment_by_name("boom-ik-tiny").experiment_id],
+                                "tags.stage = 'train'")
+    assert run.info.status == "FINISHED" and run.data.params["tunnel.kind"] == "profile"
+    assert run.data.params["tunnel_profile_md5"] == profile.md5  # a changed file is another training

@@ -26,6 +26,7 @@ the leading dimensions' broadcast. The compiled kernels follow the same rule
 
 from __future__ import annotations
 
+import hashlib
 import math
 from pathlib import Path
 
@@ -115,6 +116,8 @@ class Profile:
         self.inward = inward / np.linalg.norm(inward, axis=1, keepdims=True)
         self.segments = np.concatenate([yz, nxt], axis=1)  # (m, 4): y0, z0, y1, z1
         self.area = abs(area)
+        # what the profile is, whatever its file is called: in a training's digest and its MLflow params
+        self.md5 = hashlib.md5(yz.tobytes() + kinds.tobytes()).hexdigest()
         self._consts: dict = {}
 
     @classmethod
