@@ -23,7 +23,7 @@ LAYERS = ["core", "optim", "geometry", "data", "assembly", "learning", "solvers"
 PRODUCT_PACKAGES = {"plans", "motion", "round", "execution", "benchmarks"}
 STUDY_STAGES = {"generate", "train", "evaluate", "benchmark", "paper_baselines", "report", "derive_box", "export",
                 "export_benchmark", "calibrate", "params", "dashboard", "distill"}
-PRODUCT_STAGES = {"solve", "demo_face", "move_benchmark", "schedule", "execute"}
+PRODUCT_STAGES = {"solve", "demo_face", "move_benchmark", "schedule", "execute", "quality"}
 
 
 def module_of(path: Path, root: Path = ROOT) -> str:

@@ -228,3 +228,28 @@ def calibration_figure(df: pd.DataFrame):
     fig.suptitle("Residual error on held-out face holes, executed on the true boom")
     fig.tight_layout()
     return fig
+
+
+def deviation_figure(face: np.ndarray, table: pd.DataFrame, title: str):
+    """The face as the plan has it (``face (n, 2)``: across, up) with each hole coloured by how far its drilled
+    collar landed from the planned one (mm); holes outside the tolerance ringed in red, holes not drilled as
+    grey crosses, each of those two kinds named beside it."""
+    fig = Figure(figsize=(9, 7), layout="constrained")
+    ax = fig.add_subplot(1, 1, 1)
+    drilled = table["collar_dev_m"].notna().to_numpy()
+    dev_mm = 1000 * table["collar_dev_m"].to_numpy(float)
+    if drilled.any():
+        sc = ax.scatter(face[drilled, 0], face[drilled, 1], c=dev_mm[drilled], cmap="viridis", s=45,
+                        vmin=0.0, vmax=max(float(np.nanmax(dev_mm[drilled])), 1e-3), edgecolor="k", linewidth=0.3)
+        fig.colorbar(sc, ax=ax, shrink=0.8, label="collar deviation (mm)")
+    out = drilled & ~table["within"].to_numpy(bool)
+    ax.scatter(face[out, 0], face[out, 1], s=140, facecolor="none", edgecolor="tab:red", linewidth=1.2,
+               label=f"outside tolerance ({int(out.sum())})")
+    missing = ~drilled
+    ax.scatter(face[missing, 0], face[missing, 1], marker="x", c="grey", s=45,
+               label=f"not drilled ({int(missing.sum())})")
+    for k in np.flatnonzero(out | missing):
+        ax.annotate(str(table["hole_id"].iloc[k]), face[k], fontsize=7, xytext=(4, 4), textcoords="offset points")
+    ax.set(aspect="equal", xlabel="across the face (m, plan frame, seen along the holes)", ylabel="up (m)", title=title)
+    ax.legend(loc="upper right", fontsize=8)
+    return fig

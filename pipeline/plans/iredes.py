@@ -159,7 +159,7 @@ _TREES = ("Hole", "TMatrix")  # elements built as small trees while streaming
 
 
 @dataclass
-class _Scan:
+class IredesScan:
     root: str | None = None
     holes: list[tuple[str, list[str], dict[str, str]]] = field(default_factory=list)
     lines: list[int] = field(default_factory=list)
@@ -168,12 +168,12 @@ class _Scan:
     tmatrix: list[tuple[int, ET.Element]] = field(default_factory=list)
 
 
-def _scan(data: bytes, source: str, max_text: int) -> _Scan:
+def scan_iredes(data: bytes, source: str, max_text: int) -> IredesScan:
     """One pass of expat over the file: each ``<Hole>`` is built as a small tree, read into its
     fields and dropped, so memory follows the holes' values, not a tree of the whole file; every
     text node longer than ``max_text`` characters is refused with its line, and so is a DOCTYPE."""
     parser = expat.ParserCreate(namespace_separator=" ")
-    out = _Scan()
+    out = IredesScan()
     stack: list[str] = []
     state = {"builder": None, "kind": None, "depth": 0, "size": 0, "line": 0}
     text: list[str] = []
@@ -223,7 +223,7 @@ def _scan(data: bytes, source: str, max_text: int) -> _Scan:
                 state["builder"] = None
         elif local == "ChkSum":
             out.chksum.append((state["line"], "".join(text).strip()))
-        elif local in ("PlanId", "PlanName") and len(stack) == 1:
+        elif local in ("PlanId", "PlanName", "PlanIdRef", "PlanNameRef") and len(stack) == 1:  # plan; log
             out.top[local] = "".join(text).strip()
 
     def chars(piece):
@@ -316,7 +316,7 @@ def read_iredes_plan(
     data = path.read_bytes()
     if not data.strip():
         raise InputError(f"{path}: empty file; expected an IREDES DRPPlan")
-    scan = _scan(data, str(path), max_text)
+    scan = scan_iredes(data, str(path), max_text)
     if scan.root != "DRPPlan":
         raise InputError(f"{path}: root element is {scan.root!r}, expected 'DRPPlan' (an IREDES drill plan)")
     verdict = verify_checksum(data, str(path), checksum, scan.chksum)
@@ -361,7 +361,7 @@ def _num(value: float) -> str:
     return np.format_float_positional(float(value) + 0.0, unique=True, trim="-")
 
 
-def _sub(parent: ET.Element, ns: str, tag: str, text: str | None = None, **attrib) -> ET.Element:
+def add_element(parent: ET.Element, ns: str, tag: str, text: str | None = None, **attrib) -> ET.Element:
     # Drill Rig elements go unqualified under the root's default namespace, as in real files
     # (ElementTree's default_namespace option refuses the unqualified attributes they carry).
     el = ET.SubElement(parent, tag if ns == DR_NS else f"{{{ns}}}{tag}", attrib)
@@ -370,10 +370,10 @@ def _sub(parent: ET.Element, ns: str, tag: str, text: str | None = None, **attri
     return el
 
 
-def _point(parent: ET.Element, name: str, xyz: np.ndarray) -> None:
-    pt = _sub(parent, DR_NS, name)
+def add_point(parent: ET.Element, name: str, xyz: np.ndarray) -> None:
+    pt = add_element(parent, DR_NS, name)
     for axis, v in zip(AXES, xyz, strict=True):
-        _sub(pt, IR_NS, axis, _num(v))
+        add_element(pt, IR_NS, axis, _num(v))
 
 
 def _is_blank(value) -> bool:
@@ -404,35 +404,36 @@ def iredes_bytes(
 
     versions = ("IRVersion", "IRDownwCompat", "DRPPlanVersion", "DRPPlanDownwCompat")
     root = ET.Element("DRPPlan", {"xmlns": DR_NS, **dict.fromkeys(versions, VERSION)})
-    head = _sub(root, IR_NS, "GenHead")
-    _sub(head, IR_NS, "FileCreateDate", stamp)
-    _sub(head, IR_NS, "IRversion", VERSION, DownwCompat=VERSION)
-    _sub(root, IR_NS, "PlanId", plan_id)
-    _sub(root, IR_NS, "PlanName", plan_name)
-    _sub(root, IR_NS, "Comment", f"boom-ik drill plan; axes={amap.axes} unit={amap.unit} origin={list(amap.origin)}")
-    body = _sub(root, DR_NS, "DrillPlan")
-    _sub(body, DR_NS, "NumberOfHoles", str(len(holes)))
+    head = add_element(root, IR_NS, "GenHead")
+    add_element(head, IR_NS, "FileCreateDate", stamp)
+    add_element(head, IR_NS, "IRversion", VERSION, DownwCompat=VERSION)
+    add_element(root, IR_NS, "PlanId", plan_id)
+    add_element(root, IR_NS, "PlanName", plan_name)
+    add_element(root, IR_NS, "Comment",
+                f"boom-ik drill plan; axes={amap.axes} unit={amap.unit} origin={list(amap.origin)}")
+    body = add_element(root, DR_NS, "DrillPlan")
+    add_element(body, DR_NS, "NumberOfHoles", str(len(holes)))
     points = amap.from_base(holes[COORDS].to_numpy(dtype=np.float64))
     extra_cols = [c for c in holes.columns if c not in (*REQUIRED, "hole_type", "diameter_mm")]
     records = holes.to_dict("records")
     for row, pts in zip(records, points, strict=True):
-        hole = _sub(body, DR_NS, "Hole")
-        _sub(hole, DR_NS, "HoleId", str(row["hole_id"]))
-        _point(hole, "StartPoint", pts[:3])
-        _point(hole, "EndPoint", pts[3:])
+        hole = add_element(body, DR_NS, "Hole")
+        add_element(hole, DR_NS, "HoleId", str(row["hole_id"]))
+        add_point(hole, "StartPoint", pts[:3])
+        add_point(hole, "EndPoint", pts[3:])
         kind = row.get("hole_type")
-        _sub(hole, DR_NS, "TypeOfHole", "Undefined" if _is_blank(kind) or kind == "" else str(kind))
+        add_element(hole, DR_NS, "TypeOfHole", "Undefined" if _is_blank(kind) or kind == "" else str(kind))
         if not _is_blank(row.get("diameter_mm")):
-            _sub(hole, DR_NS, "DrillBitDia", str(row["diameter_mm"]))
+            add_element(hole, DR_NS, "DrillBitDia", str(row["diameter_mm"]))
         values = [(c, row[c]) for c in extra_cols if not _is_blank(row[c])]
         if values:
-            options = _sub(hole, DR_NS, "HoleOptions")
+            options = add_element(hole, DR_NS, "HoleOptions")
             for c, v in values:
-                _sub(options, BIK_NS, "Column", _num(v) if isinstance(v, float) else str(v), name=str(c))
+                add_element(options, BIK_NS, "Column", _num(v) if isinstance(v, float) else str(v), name=str(c))
     if checksum is not None:
-        trailer = _sub(root, IR_NS, "GenTrailer")
-        _sub(trailer, IR_NS, "FileCloseDate", stamp)
-        _sub(trailer, IR_NS, "ChkSum", "0")  # the placeholder the CRC is taken over
+        trailer = add_element(root, IR_NS, "GenTrailer")
+        add_element(trailer, IR_NS, "FileCloseDate", stamp)
+        add_element(trailer, IR_NS, "ChkSum", "0")  # the placeholder the CRC is taken over
     ET.register_namespace("IR", IR_NS)
     ET.register_namespace("bik", BIK_NS)
     ET.indent(root, space="  ")

@@ -1,4 +1,5 @@
-"""The solution's files as one set: ``<name>.csv``, ``<name>.json`` and ``<name>.png``.
+"""A result's files as one set (a solution, an as-drilled quality report): ``<name>.csv``, ``<name>.json`` and
+``<name>.png``.
 
 Checked before any work (never the plan itself, never a name that collides with the set's own
 derived names, never an existing folder), written into a private staging folder, then published
@@ -36,13 +37,15 @@ class SolutionPaths:
         return self.csv, self.json, self.png
 
 
-def solution_paths(plan_path: str | Path, out: str | Path | None) -> SolutionPaths:
-    """The set for ``out`` (default ``<plan stem>_solution.csv`` beside the plan), checked: raises
-    :class:`InputError` naming ``out`` when it is not a ``.csv`` name (its ``.json`` / ``.png``
-    siblings are the summary and the figure, so any other suffix collides with one of them), when a
-    file of the set is the plan (after resolving paths and links), or when one is a folder."""
+def solution_paths(plan_path: str | Path, out: str | Path | None, kind: str = "solution",
+                   inputs: tuple[Path, ...] = ()) -> SolutionPaths:
+    """The set for ``out`` (default ``<plan stem>_<kind>.csv`` beside the plan: a solution, an as-drilled
+    quality report), checked: raises :class:`InputError` naming ``out`` when it is not a ``.csv`` name (its
+    ``.json`` / ``.png`` siblings are the summary and the figure, so any other suffix collides with one of
+    them), when a file of the set is the plan or another of the ``inputs`` (after resolving paths and
+    links), or when one is a folder."""
     plan_path = Path(plan_path)
-    out = Path(out) if out is not None else plan_path.with_name(f"{plan_path.stem}_solution.csv")
+    out = Path(out) if out is not None else plan_path.with_name(f"{plan_path.stem}_{kind}.csv")
     if out.is_dir():
         raise InputError(f"out = {out}: an existing folder; give the solution's file name, e.g. "
                          f"out={out / (plan_path.stem + '_solution.csv')}")
@@ -52,9 +55,10 @@ def solution_paths(plan_path: str | Path, out: str | Path | None) -> SolutionPat
                          "with them or hide the table")
     paths = SolutionPaths(out, out.with_suffix(".json"), out.with_suffix(".png"))
     for p in paths.all():
-        if same_file(p, plan_path):
-            raise InputError(f"out = {out}: {p} is the drill plan {plan_path} itself; refusing to overwrite "
-                             "an input (choose another out=)")
+        for given, what in ((plan_path, "the drill plan"), *((i, "the input") for i in inputs)):
+            if same_file(p, given):
+                raise InputError(f"out = {out}: {p} is {what} {given} itself; refusing to overwrite an input "
+                                 "(choose another out=)")
         if p.is_dir():
             raise InputError(f"out = {out}: {p} is an existing folder; the solution's set needs that name")
         if p.parent.exists() and not p.parent.is_dir():
