@@ -128,10 +128,14 @@ def replan_round(cfg, node=None):
 
 # what execute reads of the planned set: each must be the file schedule wrote (its MD5 in the JSON's manifest)
 READS = ("trajectory", "actions", "interlocks", "round", "moves")
+MAX_JSON_MB = 64.0  # the planned round's JSON, read whole (as the checker's bound)
 
 
 def _planned_doc(path) -> dict:
     """The planned round's JSON, or an :class:`InputError` naming the file and the place."""
+    if path.stat().st_size > MAX_JSON_MB * 1e6:
+        raise InputError(f"{path}: {path.stat().st_size / 1e6:.1f} MB, over {MAX_JSON_MB:g} MB for a round's JSON "
+                         "(a round's is tens of kB); not read")
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as e:
@@ -504,7 +508,11 @@ EXIT_CHECKER_FAILED = 3  # the checker crashed (its exit 3, a signal, ...): no v
 def _checks_ran(checks: dict) -> None:
     """Every check judged the set (exit 0: clean, 1: violations); else the stage stops before publishing:
     the checker's exit 2 (an input it cannot judge) as an :class:`InputError` (exit 2), any other exit (its
-    own failure, exit 3, or a signal) as exit :data:`EXIT_CHECKER_FAILED`."""
+    own failure, exit 3, or a signal) as exit :data:`EXIT_CHECKER_FAILED`. A signal this process received
+    meanwhile (Ctrl-C reaches the checker too) wins: exit 128 + signum."""
+    from pipeline.core.signals import raise_if_terminated
+
+    raise_if_terminated()
     for k, c in checks.items():
         if c["exit"] in (0, 1):
             continue
