@@ -6,6 +6,8 @@
 
 It prints the URL of the experiment's runs table (MLflow 3.17 opens an experiment on its GenAI overview
 otherwise) and serves until Ctrl-C. With ``tracking.uri`` an MLflow server it only prints that server's URL.
+A port another process listens on (another MLflow UI, on another store) is refused, exit 2 naming
+``tracking.ui_port``: no URL is printed that would open another store's runs.
 """
 
 from __future__ import annotations

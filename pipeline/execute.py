@@ -1,7 +1,10 @@
 """Stage: a planned round executed by events (spec section 8), ``python -m pipeline.execute plan=P rig=twin``.
 
 It reads the set ``schedule`` wrote for the plan (``<stem>_trajectory.csv``, ``_actions.csv``,
-``_interlocks.csv``, ``_round.csv``, ``_round.json``; ``execute.round`` points elsewhere), and
+``_interlocks.csv``, ``_round.csv``, ``_round.json``; ``execute.round`` points elsewhere), first holding
+every file it reads to the MD5 the round JSON records for it, the plan to ``plan_md5`` and the composed
+rig and tunnel to ``planned_with`` (:func:`verify_planned`: a changed file is refused, exit 2, naming it),
+and
 
 1. executes it under the drilling-time model of the ``execution`` group (seeded uniform factors, stalls
    with a probability, fixed factors of named holes) by the execution rule: every draw at once, the
@@ -15,9 +18,12 @@ It reads the set ``schedule`` wrote for the plan (``<stem>_trajectory.csv``, ``_
    ``_executed.json``, ``_executed_makespans.png``, ``_executed_replay.html``), published whole and never
    over the planned files;
 4. checks with the independent checker (``scripts/check_round.py``, a separate process that imports
-   nothing of ``pipeline``): the planned set on exactly the draws (``--draws``), and the realised set
-   (``--realised``); their verdicts go into the JSON. Under ``execute.strict`` a failed check, a deadlock
-   or a hand-on round that cannot be made robust exits 1 (after writing the set).
+   nothing of ``pipeline``), on the staged set before it is published: the planned set on exactly the
+   draws (``--draws``), and the realised set (``--realised``); their verdicts go into the JSON. For an
+   IREDES plan both get the holes as read, as CSV (``<stem>_executed_plan.csv``, in the set). A check
+   that cannot judge the set stops the stage (exit 2 for the checker's 2, else 3) and nothing is
+   published; so does a signal (exit 128 + signum, the previous set intact). Under ``execute.strict`` a
+   failed check, a deadlock or a hand-on round that cannot be made robust exits 1 (after writing the set).
 
 Re-planning seconds and the checks' seconds are MLflow metrics (``timing.*``), not in the JSON.
 """
@@ -30,13 +36,14 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import hydra
 import numpy as np
 import pandas as pd
 from omegaconf import DictConfig
 
-from pipeline.assembly.rig import composed_rig, model_files
+from pipeline.assembly.rig import composed_rig, model_files, rig_record
 from pipeline.calibration.model_file import model_setting
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError, InputError
@@ -69,7 +76,7 @@ CHECKER = "scripts/check_round.py"
 @dataclass(frozen=True)
 class InterruptSettings:
     hole: str | None = None
-    at_s: float | None = field(default=None, metadata=rule(gt=0))
+    at_s: float | None = field(default=None, metadata=rule(gt=0, le=86_400))
 
 
 @dataclass(frozen=True)
@@ -85,14 +92,14 @@ class ExecuteSettings:
     strict: bool = False
     figures: bool = True
     replay: bool = True
-    replay_frames: int = field(default=400, metadata=rule(ge=2))
+    replay_frames: int = field(default=400, metadata=rule(ge=2, le=10_000))
     progress: bool = True
 
 
 def parse_execute(cfg: DictConfig) -> tuple[ExecuteSettings, InterruptSettings]:
     node = dict(as_dict(cfg.execute))
     inter = parse(InterruptSettings, node.pop("interrupt", None) or {}, "execute.interrupt")
-    node.pop("replan_round", None)  # round overrides, parsed with the round group (parse_replan_round)
+    replan_round(cfg, node.pop("replan_round", None))  # round overrides: checked now, used when a round is handed on
     node["draw"] = str(node.get("draw", "0"))
     s = parse(ExecuteSettings, node, "execute")
     if s.draw != "nominal" and not s.draw.isdigit():
@@ -100,6 +107,153 @@ def parse_execute(cfg: DictConfig) -> tuple[ExecuteSettings, InterruptSettings]:
     if (inter.hole is None) != (inter.at_s is None):
         raise ConfigError("execute.interrupt: set both hole and at_s (or neither)")
     return s, inter
+
+
+def replan_round(cfg, node=None):
+    """The round settings of a re-plan: the round group's, then ``execute.replan_round``'s, each key of which
+    must be a round setting (an unknown one is refused, not ignored) and every value in its range."""
+    import dataclasses
+
+    from pipeline.core.settings import unknown_keys
+    from pipeline.round.settings import RoundSettings, parse_round
+
+    node = as_dict(cfg.execute.get("replan_round")) if node is None else node
+    node = node or {}
+    if not isinstance(node, dict):
+        raise ConfigError(f"execute.replan_round = {node!r}: expected a mapping of round settings")
+    unknown_keys(node, {f.name for f in dataclasses.fields(RoundSettings)}, "execute.replan_round",
+                 " (round settings of the re-plan after an interruption)")
+    return parse_round({**as_dict(cfg.round), **node}, "round + execute.replan_round")
+
+
+# what execute reads of the planned set: each must be the file schedule wrote (its MD5 in the JSON's manifest)
+READS = ("trajectory", "actions", "interlocks", "round", "moves")
+MAX_JSON_MB = 64.0  # the planned round's JSON, read whole (as the checker's bound)
+
+
+def _planned_doc(path) -> dict:
+    """The planned round's JSON, or an :class:`InputError` naming the file and the place."""
+    if path.stat().st_size > MAX_JSON_MB * 1e6:
+        raise InputError(f"{path}: {path.stat().st_size / 1e6:.1f} MB, over {MAX_JSON_MB:g} MB for a round's JSON "
+                         "(a round's is tens of kB); not read")
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: cannot read the planned round's JSON ({e})") from None
+    try:
+        doc = json.loads(text)
+    except (json.JSONDecodeError, RecursionError) as e:
+        where = (f"line {e.lineno}, column {e.colno}: {e.msg}" if isinstance(e, json.JSONDecodeError)
+                 else "nested too deep")
+        raise InputError(f"{path}: not valid JSON ({where}); re-run schedule") from None
+    if not isinstance(doc, dict):
+        raise InputError(f"{path}: expected a JSON object (the planned round's summary), got {type(doc).__name__}")
+    return doc
+
+
+def verify_planned(planned, doc: dict, plan_path, recorded_with: dict) -> None:
+    """The planned files execute reads are those schedule wrote, the plan is the one the round was planned
+    from and the rig and tunnel are those it was planned with: an :class:`InputError` (a file: changed,
+    not in the manifest) or :class:`ConfigError` (settings) naming what differs, before any work.
+
+    The JSON's ``files`` holds the MD5 of each sibling (written last, :func:`write_round_set`), ``plan_md5``
+    the plan's; the plan is compared by content, not path (a DVC temporary copy runs it under another path)."""
+    from pipeline.assembly.rig import record_differences
+
+    where = planned["json"]
+    manifest = doc.get("files")
+    if not isinstance(manifest, dict) or not all(isinstance(v, str) for v in manifest.values()):
+        raise InputError(f"{where}: no `files` manifest (each planned file's MD5): not a set schedule wrote; "
+                         "re-run schedule")
+    for kind in READS:
+        path = planned[kind]
+        said = manifest.get(path.name)
+        if said is None:
+            if kind == "moves" and not path.exists():
+                continue  # no move book: every move is certified again
+            raise InputError(f"{path}: not in the manifest of {where} (`files`): not a file of the planned set; "
+                             "re-run schedule, or remove it")
+        if not path.is_file():
+            if kind == "moves":
+                continue
+            raise InputError(f"{path}: not found; {where} lists it")
+        now = file_md5(path)
+        if now != said:
+            raise InputError(f"{path}: changed since schedule wrote it (MD5 {now}; {where.name} records {said}): "
+                             "execute runs the planned files as planned; re-run schedule for a changed round")
+    said = doc.get("plan_md5")
+    if not isinstance(said, str):
+        raise InputError(f"{where}: no plan_md5 (the plan's MD5): planned before plans were recorded; re-run schedule")
+    now = file_md5(plan_path)
+    if now != said:
+        raise InputError(f"plan = {plan_path}: not the plan {where.name} was planned from (its MD5 {now}; the round "
+                         f"records {said} for {doc.get('plan')}): a plan changed after planning is planned again "
+                         "(python -m pipeline.schedule), never executed on the old round")
+    planned_with = doc.get("planned_with")
+    if not isinstance(planned_with, dict):
+        raise InputError(f"{where}: no planned_with (the rig and tunnel it was planned with); re-run schedule")
+    diff = record_differences(planned_with, recorded_with)
+    if diff:
+        raise ConfigError(f"{where} was planned with another rig or tunnel than this run's ({'; '.join(diff[:6])}): "
+                          "give the settings it was planned with (rig=..., tunnel=..., tunnel.file=...)")
+
+
+def _csv(path, columns, what: str, numeric=()) -> pd.DataFrame:
+    """A planned CSV, every column there and every ``numeric`` cell a finite number; else an :class:`InputError`
+    naming the file, the column and the row (file line)."""
+    try:
+        df = pd.read_csv(path, keep_default_na=False, dtype=str)
+    except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: cannot read the {what} as CSV ({' '.join(str(e).split())})") from None
+    missing = [c for c in columns if c not in df.columns]
+    if missing:
+        raise InputError(f"{path}: the {what} has no column(s) {missing}")
+    for c in numeric:
+        v = pd.to_numeric(df[c], errors="coerce").to_numpy(float)
+        bad = ~np.isfinite(v)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise InputError(f"{path}: row {i + 2}: {c} = {df[c].iloc[i]!r} is not a finite number ({what})")
+    return df
+
+
+def _read_trajectory(path, names: list[str]) -> pd.DataFrame:
+    df = _csv(path, ["boom", "t", *names, "event", "hole_id"], "trajectory file", ["t", *names])
+    return df.astype({c: float for c in ["t", *names]})
+
+
+def _read_round_table(path, names: list[str]) -> pd.DataFrame:
+    df = _csv(path, ["hole_id", "boom", "status", "reason", *names], "round table")
+    ok = df["status"] == "ok"
+    for c in names:
+        v = pd.to_numeric(df[c], errors="coerce").to_numpy(float)
+        bad = ok.to_numpy() & ~np.isfinite(v)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise InputError(f"{path}: row {i + 2}: {c} = {df[c].iloc[i]!r} is not a finite number (round table)")
+    out = pd.read_csv(path, keep_default_na=False, dtype={"hole_id": str, "boom": str})
+    return out.replace({"": np.nan}).assign(hole_id=out["hole_id"], boom=out["boom"], status=out["status"],
+                                            reason=out["reason"])
+
+
+def _plan_holes(plan) -> pd.DataFrame:
+    """The plan's holes as the stage read them, in the plan's own frame (its navigation undone), as a CSV plan
+    (``hole_id``, collar and toe x y z), each unreadable row an id without coordinates (the round table's
+    ``invalid`` row): what the independent checker reads for an IREDES plan, which it does not parse."""
+    from pipeline.plans.model import COORDS
+
+    xyz = plan.holes[COORDS].to_numpy(float)
+    if plan.navigation is not None:
+        xyz = plan.navigation.to_plan(xyz)
+    good = pd.DataFrame(xyz, columns=COORDS)
+    good.insert(0, "hole_id", plan.holes["hole_id"].astype(str).to_numpy())
+    lines = np.arange(len(good)) if plan.lines is None else np.asarray(plan.lines)
+    by_row: dict[int, str] = {}
+    for p in plan.problems:
+        by_row.setdefault(p.row, p.hole_id or f"row {p.row}")
+    bad = pd.DataFrame({"hole_id": list(by_row.values())})
+    order = np.argsort(np.concatenate([lines, np.array(sorted(by_row), dtype=lines.dtype)]), kind="stable")
+    return pd.concat([good, bad], ignore_index=True).iloc[order].reset_index(drop=True)
 
 
 def _planned_set(cfg, plan_path, settings: ExecuteSettings):
@@ -117,12 +271,14 @@ def _check(args: list[str], what: str) -> dict:
     started = time.perf_counter()
     proc = subprocess.run([sys.executable, str(project_path(CHECKER)), *args], capture_output=True, text=True,
                           cwd=str(project_path(".")))
-    out = {"exit": proc.returncode, "seconds": time.perf_counter() - started}
+    out = {"exit": proc.returncode, "seconds": time.perf_counter() - started, "stderr": proc.stderr[-4000:]}
     try:  # the checker prints one JSON document
         doc = json.loads(proc.stdout) if proc.stdout.strip() else None
     except json.JSONDecodeError:
         doc = None
     out["verdict"] = _verdict(doc)
+    if proc.returncode in (0, 1):
+        out.pop("stderr")
     if proc.returncode not in (0, 1):
         log.error("checker (%s) exit %d: %s", what, proc.returncode, proc.stderr.strip()[-2000:])
     return out
@@ -133,6 +289,9 @@ def _verdict(doc: dict | None) -> dict | None:
     if doc is None:
         return None
     keep = {"violations": len(doc.get("violations") or [])}
+    if isinstance(doc.get("holes"), dict):  # the plan's holes it judged: counts, and the plan file's name
+        keep["holes"] = {k: v for k, v in doc["holes"].items() if k in ("plan", "drilled", "reported_not_drilled")}
+        keep["plan"] = Path(str(doc.get("plan", ""))).name
     ex = doc.get("execution")
     if isinstance(ex, dict):
         keep["execution"] = {k: ex[k] for k in ("draws", "violating_draws", "deadlocks", "violations",
@@ -181,11 +340,14 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
                         [plan_path, *planned.all().values(), *map(project_path, model_files(cfg))], EXECUTED)
     require_writable(files.folder, "execute.out (its folder)")
     rig = composed_rig(cfg, model_setting)
-    doc = json.loads(planned["json"].read_text())
+    doc = _planned_doc(planned["json"])
     if doc.get("rig") != rig.name:
         raise ConfigError(f"rig = {rig.name}: the planned round {planned['json']} is of rig {doc.get('rig')!r}")
+    verify_planned(planned, doc, plan_path, rig_record(cfg))  # every file read is the one planned: before any work
     plan = read_plan_in_rig_frame(plan_path, parse(NavigationSettings, cfg.navigation, "navigation"),
                                   as_dict(cfg.solve.iredes))
+    if not isinstance(doc.get("navigation", {}), dict):
+        raise InputError(f"{planned['json']}: navigation = {doc['navigation']!r}: expected the navigation record")
     same_navigation(plan.navigation, doc.get("navigation"), planned["json"])
     ids = plan.holes["hole_id"].astype(str).tolist()
     table = read_actions(planned["actions"])
@@ -194,13 +356,9 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
                             [rig.names.index(b) for b in table["boom"]]))].reset_index(drop=True),
                             str(planned["actions"]))
     names = list(rig.booms[0].boom.joint_names)
-    traj = pd.read_csv(planned["trajectory"], keep_default_na=False, dtype={"boom": str, "event": str, "hole_id": str})
+    traj = _read_trajectory(planned["trajectory"], names)
     rows = action_rows(traj, acts, names, str(planned["trajectory"]))
-    planned_table = pd.read_csv(planned["round"], keep_default_na=False, float_precision="round_trip",
-                                dtype={"hole_id": str, "boom": str})
-    planned_table = planned_table.replace({"": np.nan}).assign(
-        hole_id=planned_table["hole_id"], boom=planned_table["boom"], status=planned_table["status"],
-        reason=planned_table["reason"])
+    planned_table = _read_round_table(planned["round"], names)
     H = len(ids)
     planned_s = np.ones(H)
     planned_s[acts.hole[acts.is_drill]] = acts.duration[acts.is_drill]
@@ -211,10 +369,15 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
         mlrun.log_params({"plan": str(plan_path), "rig": rig.name, "execute": as_dict(cfg.execute),
                           "execution": as_dict(cfg.execution)})
         timings: dict[str, float] = {}
-        out: dict = {"plan": str(plan_path), "rig": rig.name, "realised": True, "d_boom_m": rig.d_boom,
+        writers = {}
+        out: dict = {"plan": str(plan_path), "plan_md5": doc["plan_md5"], "planned_with": doc["planned_with"],
+                     "rig": rig.name, "realised": True, "d_boom_m": rig.d_boom,
                      "planned": {p.name: file_md5(p) for p in planned.all().values() if p.is_file()},
                      "nominal_makespan_s": nominal}
-        writers = {}
+        if plan_path.suffix.lower() == ".xml":  # the checker reads CSV plans: the holes as read, beside the set
+            holes = _plan_holes(plan)
+            writers["plan"] = lambda p: write_csv(holes, p)
+            out["plan_holes"] = files["plan"].name
         d = draws(acts, execution)
         mc = None
         if settings.monte_carlo:
@@ -259,11 +422,8 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
                 ex = execute(acts, edges, cut)
                 interrupted = {st.interrupted}
             else:
-                from pipeline.round.settings import parse_round
-
                 # the round group's settings, then execute.replan_round's (routing off by default: on the clock)
-                round_settings = parse_round({**as_dict(cfg.round), **(as_dict(cfg.execute.get("replan_round"))
-                                                                         or {})}, "round + execute.replan_round")
+                round_settings = replan_round(cfg)
                 t0 = time.perf_counter()
                 inst, oracle = _instance(cfg, rig, plan, round_settings, planned_table)
                 timings["instance_s"] = time.perf_counter() - t0
@@ -312,41 +472,61 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
             title = f"executed: {label}" + (f", hole {inter.hole} interrupted, handed on" if interrupted else "")
             writers["replay"] = lambda p: write_text(replay_html(realised_traj, rig, collars,
                                                                  settings.replay_frames, title), p)
-        checks = {}
 
         def log_staged(staged):
             for kind in ("json", "replay"):
                 if kind in staged:
                     mlrun.log_artifact(staged[kind])
 
-        out = write_round_set(files, out, writers, log_staged)
-        if settings.check:
-            overrides = _overrides() if overrides is None else list(overrides)
+        def check_staged(staged: dict) -> dict:
+            """The independent checks of the staged set, before anything is published (their verdicts go into
+            its JSON); one that cannot judge it stops the stage, and nothing is published."""
+            ov = _overrides() if overrides is None else list(overrides)
+            plan_arg = str(staged.get("plan", plan_path))  # an IREDES plan: the holes as read, as CSV
+            checks = {}
             if mc is not None:
-                checks["planned_draws"] = _check([str(planned["trajectory"]), *overrides, "--draws",
-                                                  str(files["draws"])], "the planned set on the draws")
-            checks["realised"] = _check([str(files["trajectory"]), *overrides, "--realised", "--round",
-                                         str(files["round"]), "--summary", str(files["json"]), "--actions",
-                                         str(files["actions"]), "--interlocks", str(files["interlocks"]),
-                                         "--plan", str(plan_path)], "the realised set")
+                checks["planned_draws"] = _check([str(planned["trajectory"]), *ov, "--draws", str(staged["draws"]),
+                                                  "--plan", plan_arg], "the planned set on the draws")
+            checks["realised"] = _check([str(staged["trajectory"]), *ov, "--realised", "--round",
+                                         str(staged["round"]), "--summary", str(staged["json"]), "--actions",
+                                         str(staged["actions"]), "--interlocks", str(staged["interlocks"]),
+                                         "--plan", plan_arg], "the realised set")
             for k, c in checks.items():
                 timings[f"check_{k}_s"] = c.pop("seconds")
-            out["checks"] = {k: {"exit": c["exit"], "verdict": c["verdict"]} for k, c in checks.items()}
-            _add_to_summary(files, out)
+            _checks_ran(checks)
+            return {"checks": {k: {"exit": c["exit"], "verdict": c["verdict"]} for k, c in checks.items()}}
+
+        out = write_round_set(files, out, writers, log_staged, check_staged if settings.check else None)
         mlrun.log_metrics({**_metrics(out), **{f"timing.{k}": v for k, v in timings.items()}})
     _report(out, timings, files, settings)
     return out
 
 
-def _add_to_summary(files, out: dict) -> None:
-    """The published summary again, with the checks' verdicts: its siblings (and so its manifest) unchanged,
-    replaced by one rename under the set's lock."""
-    from filelock import FileLock
+EXIT_CHECKER_FAILED = 3  # the checker crashed (its exit 3, a signal, ...): no verdict, nothing published
 
-    from pipeline.core.io import write_json
 
-    with FileLock(str(files.lock), timeout=600):
-        write_json(out, files["json"])
+def _checks_ran(checks: dict) -> None:
+    """Every check judged the set (exit 0: clean, 1: violations); else the stage stops before publishing:
+    the checker's exit 2 (an input it cannot judge) as an :class:`InputError` (exit 2), any other exit (its
+    own failure, exit 3, or a signal) as exit :data:`EXIT_CHECKER_FAILED`. A signal this process received
+    meanwhile (Ctrl-C reaches the checker too) wins: exit 128 + signum."""
+    from pipeline.core.signals import raise_if_terminated
+
+    raise_if_terminated()
+    for k, c in checks.items():
+        if c["exit"] in (0, 1):
+            continue
+        what = {"planned_draws": "planned set on the draws", "realised": "realised set"}.get(k, k)
+        said = c.get("stderr", "").strip().splitlines()
+        last = said[-1] if said else "(nothing on stderr)"
+        if c["exit"] == 2:
+            raise InputError(f"the independent check of the {what} could not judge it (checker exit 2: {last}); "
+                             "nothing published")
+        log.error("execute: the independent check of the %s failed (checker exit %d: %s); nothing published", what,
+                  c["exit"], last)
+        print(f"error: the independent check of the {what} failed (checker exit {c['exit']}); nothing published",
+              file=sys.stderr)
+        raise SystemExit(EXIT_CHECKER_FAILED)
 
 
 def _check_joints(oracle, st, rows, acts, ids) -> None:

@@ -13,7 +13,9 @@ and its baselines, and writes beside the plan (or into ``out``, a folder or a ``
 - ``<stem>_round.csv``: hole_id, boom, order, t_start, t_end, q1 .. q8, status, reason (every plan
   hole once, unreadable rows as ``invalid``);
 - ``<stem>_trajectory.csv``: the spec's trajectory file, every boom park to park;
-- ``<stem>_round.json``: makespan, lower bound, baselines, clearance, per boom times, moves by kind;
+- ``<stem>_round.json``: makespan, lower bound, baselines, clearance, per boom times, moves by kind; the
+  plan's MD5 (``plan_md5``) and what the round was planned with (``planned_with``: the rig, its booms and
+  the tunnel, a profile by its file's MD5), which ``execute`` and the independent checker hold theirs to;
 - ``<stem>_round_face.png``, ``<stem>_round_gantt.png``, ``<stem>_round_replay.html``;
 - for every rig (``schedule.interlocks``; one boom has no interlock, the file holds its header), the round
   executed by events (spec section 8,
@@ -43,11 +45,11 @@ import pandas as pd
 from omegaconf import DictConfig
 
 from pipeline.assembly.build import build_safety, load_boom
-from pipeline.assembly.rig import build_rig, composed_rig, model_files, rig_booms, rig_spec, rig_tunnel
+from pipeline.assembly.rig import build_rig, composed_rig, model_files, rig_booms, rig_record, rig_spec, rig_tunnel
 from pipeline.calibration.model_file import model_setting
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError
-from pipeline.core.io import require_writable, save_figure, write_csv, write_text
+from pipeline.core.io import file_md5, require_writable, save_figure, write_csv, write_text
 from pipeline.core.settings import RuntimeSettings, coerce, parse, rule
 from pipeline.core.stage import run_stage
 from pipeline.data.holes import joint_box
@@ -123,6 +125,9 @@ def run(cfg: DictConfig) -> dict:
     require_writable(files.folder, "out (its folder)")
     rig = composed_rig(cfg, model_setting)  # its booms from boom, boom_model, boom_models: before any work
     motions = rig_motions(as_dict(cfg.motion), rig.booms)
+    # what the round is planned with, for execute and the checker to hold their own settings and files to
+    planned_with = rig_record(cfg)
+    plan_md5 = file_md5(plan_path) if plan_path.is_file() else None
     plan = read_plan_in_rig_frame(plan_path, parse(NavigationSettings, cfg.navigation, "navigation"),
                                   as_dict(cfg.solve.iredes))
     if len(plan) == 0:
@@ -153,8 +158,9 @@ def run(cfg: DictConfig) -> dict:
         finally:
             close()
         table = with_invalid_rows(res.round, plan)
-        summary = {"plan": str(plan_path), **res.summary, "invalid_rows": len({p.row for p in plan.problems}),
-                   "navigation": plan.navigation.record()}
+        summary = {"plan": str(plan_path), "plan_md5": plan_md5, **res.summary,
+                   "invalid_rows": len({p.row for p in plan.problems}), "navigation": plan.navigation.record(),
+                   "planned_with": planned_with}
         # wall-clock seconds go to MLflow only: the round JSON is DVC-tracked and must reproduce
         timings = {**res.timings, "reach_solve_s": reach.summary()["solve_s"]}
         executed = res.finished

@@ -13,7 +13,9 @@ composed from ``conf/`` with the stage's own overrides (``tunnel=profile tunnel.
 any cross-section; ``navigation.pose=[...]`` or ``navigation.points=<csv>``: the plan in its own frame,
 taken into the rig frame before its holes are matched). Imports
 nothing of ``pipeline``: the code is :mod:`round_check` beside this file. Prints one JSON object;
-exit 0 clean, 1 violations (or a clearance that cannot be certified), 2 input errors.
+exit 0 clean, 1 violations (or a clearance that cannot be certified), 2 input errors (a file, an argument
+out of its range, a setting, a rig or tunnel other than the round's: named on stderr), 3 a failure of the
+checker's own (its traceback on stderr, no verdict).
 """
 
 from __future__ import annotations

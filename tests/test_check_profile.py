@@ -296,14 +296,19 @@ def test_the_command_line_resolves_a_relative_profile_from_the_project_root(tmp_
 
 
 def test_the_planned_round_in_the_horseshoe_polyline(small_twin_round):
-    """The small twin round, planned in the horseshoe, checked against the horseshoe as a polyline: clean,
-    every boom's sampled clearances within the chord error of the horseshoe's (the same instants)."""
+    """The small twin round, planned in the horseshoe, checked against the horseshoe as a polyline (on purpose:
+    ``--other-tunnel``; without it another tunnel than the round's is refused): clean, every boom's sampled
+    clearances within the chord error of the horseshoe's (the same instants)."""
     tmp, overrides = small_twin_round
     traj = tmp / "small_trajectory.csv"
     rc, horse, err = _run(traj, *overrides)
     assert rc == 0, err
-    rc, poly, err = _run(traj, *overrides, *HORSESHOE_CSV)
+    rc, _, err = _run(traj, *overrides, *HORSESHOE_CSV)  # another tunnel than the round's: refused unless asked for
+    assert rc == 2 and "planned with another tunnel" in err and "--other-tunnel" in err, err
+    rc, poly, err = _run(traj, *overrides, *HORSESHOE_CSV, "--other-tunnel")
     assert rc == 0, (err, poly and poly["violations"], poly and poly["not_certified"])
+    said = poly["planned_with"]
+    assert said["planned"]["kind"] == "horseshoe" and said["checked"]["kind"] == "profile"
     assert poly["tunnel"]["kind"] == "profile" and horse["tunnel"]["kind"] == "horseshoe"
     for b in ("L", "R"):
         for s in ("wall", "ground", "arch"):

@@ -526,3 +526,83 @@ def test_settings_follow_the_composed_config():
     assert st.booms[0].speed[0] == pytest.approx(math.radians(7.5)) and st.safety["self"] == 0.2
     assert st.d_boom == 0.4 and st.drill_times(np.array([2.5]))[0] == pytest.approx([12.0, 60.0, 2.5])
     np.testing.assert_allclose(st.booms[0].park, np.radians([0, 0, 0, 0, 0, 0, 180, 0]) + [0, 0, 3.0, 0, 0, 0, 0, 1.0])
+
+
+# -- the checker's own input problems (issue 55): exit 2 naming them; its own failure exit 3 ----------------
+
+@pytest.mark.parametrize("extra, needle", [
+    (["--seed", "-1"], "--seed = -1: must be a whole number in 0..4294967295"),
+    (["--spacing-m", "1e-9"], "--spacing-m = 1e-09: must be a number in [0.001, 1] m"),
+    (["--execute", "100000000"], "--execute = 100000000: must be a whole number of draws in 0..10000"),
+    (["--angle-tol-deg", "1e9"], "--angle-tol-deg = 1000000000.0: must be a number in (0, 180]"),
+])
+def test_arguments_out_of_range_are_input_errors(good, extra, needle):
+    """Once a crash reported as violations (exit 1): --seed -1, --spacing-m 1e-9 (memory), --execute 1e8."""
+    tmp, overrides = good
+    rc, report, err = _run(tmp / "small_trajectory.csv", overrides, *extra)
+    assert rc == 2 and needle in err and report is None, err
+
+
+def test_oversized_lines_cells_and_files_are_refused_before_parsing(good, monkeypatch):
+    """A huge cell once took the checker to 8.9 GB (a text column becomes fixed-width numpy strings): a line over
+    64 KiB, a used column's cell over 256 characters and a file over the size bound are refused, named."""
+    def cell(n):
+        def plant(t):
+            t["hole_id"] = t["hole_id"].astype(object)
+            t.loc[_move_row(t, "R"), "hole_id"] = "x" * n
+            return t
+        return plant
+
+    long = _plant(good, "long_line", cell(100_000))
+    _fails(good, long, "long_line/small_trajectory.csv: line ", "bytes long, over the checker's 65536", code=2)
+    wide = _plant(good, "long_cell", cell(300))
+    _fails(good, wide, "long_cell/small_trajectory.csv: row ", "the hole_id cell is 300 characters long", code=2)
+    monkeypatch.setattr(cr.files, "MAX_CSV_MB", 0.001)
+    _fails(good, good[0] / "small_trajectory.csv", "small_trajectory.csv: ", "MB, over the checker's 0.001 MB", code=2)
+
+
+def test_a_fault_of_the_checker_s_own_is_exit_3_never_a_verdict(good, monkeypatch):
+    """An unexpected exception in the checker is neither clean (0) nor violations (1): exit 3, its traceback."""
+    def broken(*args, **kw):
+        raise RuntimeError("a planted bug")
+
+    monkeypatch.setattr(sys.modules["round_check.rules"], "makespan", broken)  # the checker's own module
+    rc, report, err = _run(good[0] / "small_trajectory.csv", good[1])
+    assert rc == 3 and report is None, err
+    assert "Traceback" in err and "a planted bug" in err and "internal error" in err
+
+
+@pytest.mark.parametrize("extra, needle", [
+    (["tunnel=horseshoe_wide"], "tunnel.width: planned 5.0, composed 8.0"),
+    (["rig.booms.0.base=[0.0,0.9,0.0]"], "rig.booms[0].base[1]: planned 0.8, composed 0.9"),
+    (["rig.d_boom=0.2"], "rig.d_boom: planned 0.3, composed 0.2"),
+])
+def test_a_tunnel_or_rig_other_than_the_round_s_is_refused(good, extra, needle):
+    """The round JSON records what it was planned with (planned_with); the checker holds its composed settings
+    to it (once it judged a round in whatever tunnel it was given)."""
+    tmp, overrides = good
+    rc, report, err = _run(tmp / "small_trajectory.csv", [*overrides, *extra])
+    assert rc == 2 and needle in err and report is None, err
+    assert "planned with another" in err
+
+
+def test_a_profile_is_compared_by_its_content_not_its_path(good, tmp_path):
+    import hashlib
+
+    src = PROJECT_ROOT / "conf" / "tunnel" / "profiles" / "d_5x5.csv"
+    digest = hashlib.md5(src.read_bytes()).hexdigest()
+
+    def profiled(s):
+        s["planned_with"]["tunnel"] = {"kind": "profile", "file": "conf/tunnel/profiles/d_5x5.csv", "md5": digest}
+        return s
+
+    traj = _plant(good, "profiled", summary=profiled)
+    edited = tmp_path / "d_5x5.csv"  # the same name, one vertex moved 1 cm
+    lines = src.read_text().splitlines()
+    y, z, kind = lines[2].split(",")
+    lines[2] = ",".join([repr(float(y) + 0.01), z, kind])
+    edited.write_text("\n".join(lines) + "\n")
+    rc, _, err = _run(traj, [*good[1], "tunnel=profile", f"tunnel.file={edited}"])
+    assert rc == 2 and "tunnel.md5: planned" in err, err
+    moved = cr.settings.record({"name": "r", "d_boom": 0.3, "booms": []}, {"kind": "profile", "file": str(src)})
+    assert cr.settings.differences({"kind": "profile", "file": "elsewhere/d.csv", "md5": digest}, moved["tunnel"]) == []

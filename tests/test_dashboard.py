@@ -51,6 +51,77 @@ def test_a_bad_port_is_named(tmp_path, port):
         TrackingSettings.from_config({"enabled": False, "experiment": "e", "ui_port": port})
 
 
+def _listening():
+    """A socket listening on a free loopback port (another process's server, for the dashboard): (socket, port)."""
+    import socket
+
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    s.listen(1)
+    return s, s.getsockname()[1]
+
+
+def test_a_taken_port_is_refused_naming_it_and_no_url_is_printed(tmp_path, capsys):
+    """Once the stage printed a URL to whatever answered there (another store's experiment), exit 0, or crashed
+    with a traceback: now exit 2 naming tracking.ui_port, before the UI starts, and no URL."""
+    from pipeline.core.config import compose
+    from pipeline.core.stage import run_stage
+    from pipeline.dashboard import serve
+
+    taken, port = _listening()
+    with taken:
+        cfg = compose([f"tracking.uri=sqlite:///{tmp_path}/d.db", f"tracking.artifact_root={tmp_path}/art",
+                       f"tracking.ui_port={port}"])
+        with pytest.raises(SystemExit) as e:
+            run_stage(cfg, serve, threads=None)
+    out = capsys.readouterr()
+    assert e.value.code == 2
+    assert f"tracking.ui_port = {port}: 127.0.0.1:{port} is in use by another process" in out.err
+    assert "http" not in out.out and "http" not in out.err
+
+
+def test_an_answer_from_another_server_is_never_taken_for_the_ui(tmp_path, monkeypatch):
+    """Should the port be taken between the check and the UI's start, the health check may be answered by the
+    other server: the answer counts only when this UI's process tree listens on the port."""
+    import http.server
+    import subprocess
+    import sys
+    import threading
+
+    from pipeline.core.errors import ConfigError
+    from pipeline.tracking import dashboard
+
+    class Health(http.server.BaseHTTPRequestHandler):
+        def do_GET(self):  # noqa: N802 - http.server's name
+            self.send_response(200)
+            self.end_headers()
+
+        def log_message(self, *args):
+            pass
+
+    other = http.server.HTTPServer(("127.0.0.1", 0), Health)  # another store's UI
+    port = other.server_address[1]
+    threading.Thread(target=other.serve_forever, daemon=True).start()
+    started, popen = [], subprocess.Popen
+
+    def fake_ui(cmd, **kw):  # a UI that never gets the port
+        started.append(popen([sys.executable, "-c", "import time; time.sleep(60)"], start_new_session=True))
+        return started[-1]
+
+    monkeypatch.setattr(dashboard, "port_free", lambda host, port: True)  # the race: checked free, then taken
+    monkeypatch.setattr(dashboard.subprocess, "Popen", fake_ui)
+    monkeypatch.setattr(dashboard, "prepare_store", lambda settings: "1")  # the store is not under test
+    s = TrackingSettings.from_config({"enabled": False, "uri": f"sqlite:///{tmp_path}/m.db", "experiment": "e",
+                                      "artifact_root": str(tmp_path / "art"), "ui_port": port})
+    try:
+        with pytest.raises(ConfigError, match=f"tracking.ui_port = {port}: .* is in use by another process"):
+            dashboard.start(s)
+    finally:
+        other.shutdown()
+        other.server_close()
+    assert started and started[0].poll() is not None  # the UI started is stopped again
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(shutil.which("chromium") is None, reason="needs chromium (apt-get install -y chromium)")
 def test_a_headless_browser_lands_on_the_runs_table(tmp_path):

@@ -71,6 +71,14 @@ def test_imitation_metrics_against_the_training_code_and_a_copy(teacher_and_hole
     (["distill.width=0"], "distill.width"),
     (["distill.activation=swish"], "distill.activation"),
     (["distill.lr_min=1.0"], "lr_min"),
+    # issue 55: a name is a file name in paths.data/models, never a path (it crashed); sizes have ranges
+    (["distill.name=../escaped"], r"distill.name = '../escaped': expected a network name"),
+    (["distill.name=sub/net"], r"distill.name = 'sub/net': expected a network name"),
+    (["distill.teacher=../../etc/x"], r"distill.teacher = '../../etc/x': expected a network name"),
+    (["distill.pool=1000000000"], r"distill.pool = 1000000000: must be <= 1000000"),
+    (["distill.batch_size=100000000"], r"distill.batch_size = 100000000: must be <= 65536"),
+    (["distill.batch_size=4096"], r"distill.batch_size = 4096: more than distill.pool = 2000"),
+    (["distill.width=1000000"], r"distill.width = 1000000: must be <= 4096"),
 ])
 def test_bad_settings_are_named_before_any_work(override, match, make_cfg, tmp_path):
     with pytest.raises(ConfigError, match=match):

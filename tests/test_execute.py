@@ -186,3 +186,250 @@ def test_a_navigation_other_than_the_planned_one_is_refused_before_any_work(plan
                                           r"this run puts it at \[0.5, 0.0, 0.0, 0.0, 0.0, 0.0\]"):
         run(planned, "navigation.pose=[0.5,0,0,0,0,0]", folder=tmp_path)
     assert not any(tmp_path.iterdir())  # nothing written
+
+
+# ---------------------------------------------------------------------------------------------
+# Issue 55: execute runs only the files it planned, publishes only what was checked, refuses with a name
+
+
+PLANNED = ("small_trajectory.csv", "small_actions.csv", "small_interlocks.csv", "small_round.csv",
+           "small_round.json", "small_moves.npz")
+
+
+def _copy_set(planned, dst):
+    """The plan and its planned set copied to ``dst`` (the module's own stay untouched): the overrides there."""
+    import shutil
+
+    tmp, overrides = planned
+    dst.mkdir(parents=True, exist_ok=True)
+    for name in ("small.csv", *PLANNED):
+        shutil.copy(tmp / name, dst / name)
+    return [o for o in overrides if not o.startswith("plan=")] + [f"plan={dst / 'small.csv'}"]
+
+
+def _stage(overrides):
+    """The stage as ``main`` runs it (``run_stage``): its exit code and what it said on stderr."""
+    import contextlib
+    import io
+
+    from pipeline import execute
+    from pipeline.core.stage import run_stage
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        try:
+            run_stage(compose(overrides), lambda c: execute.run_execute(c, overrides), threads=None)
+            code = 0
+        except SystemExit as e:
+            code = e.code
+    return code, err.getvalue()
+
+
+def _rewrite_manifest(folder, name):
+    """The JSON's manifest made to agree with an edited file (what a careful forger would do)."""
+    from pipeline.core.io import file_md5
+
+    doc = json.loads((folder / "small_round.json").read_text())
+    doc["files"][name] = file_md5(folder / name)
+    (folder / "small_round.json").write_text(json.dumps(doc))
+
+
+def _edit_csv(path, edit):
+    df = pd.read_csv(path, keep_default_na=False, dtype={"hole_id": str})
+    edit(df)
+    df.to_csv(path, index=False)
+
+
+def _mark_all_clear(path):
+    with np.load(path, allow_pickle=False) as z:
+        data = {k: z[k] for k in z.files}
+    data["status"] = np.ones_like(data["status"])  # every move "certified clear"
+    with open(path, "wb") as f:
+        np.savez_compressed(f, **data)
+
+
+def _md5_edited(path):
+    doc = json.loads(path.read_text())
+    doc["files"]["small_trajectory.csv"] = "0" * 32
+    path.write_text(json.dumps(doc))
+
+
+TAMPERED = {  # what is edited -> (edit of the copy, the file the refusal names)
+    "plan moved 0.5 m": (lambda d: _edit_csv(d / "small.csv", lambda df: df.__setitem__(
+        "collar_x", df["collar_x"] + 0.5)), "small.csv"),
+    "actions": (lambda d: _edit_csv(d / "small_actions.csv", lambda df: df.__setitem__(
+        "t_end", df["t_end"] * 0.9)), "small_actions.csv"),
+    "interlocks": (lambda d: _edit_csv(d / "small_interlocks.csv", lambda df: df.drop(df.index[:1], inplace=True)),
+                   "small_interlocks.csv"),
+    "trajectory joints": (lambda d: _edit_csv(d / "small_trajectory.csv", lambda df: df.__setitem__(
+        "q1", df["q1"] + 0.01)), "small_trajectory.csv"),
+    "round table": (lambda d: _edit_csv(d / "small_round.csv", lambda df: df.__setitem__(
+        "boom", df["boom"][::-1].to_numpy())), "small_round.csv"),
+    "move book marked all-clear": (lambda d: _mark_all_clear(d / "small_moves.npz"), "small_moves.npz"),
+    "the JSON's MD5": (lambda d: _md5_edited(d / "small_round.json"), "small_trajectory.csv"),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("what", list(TAMPERED))
+def test_a_tampered_planned_file_is_refused_naming_it_and_nothing_is_written(planned, tmp_path, what):
+    """Every file execute reads must be the one schedule wrote (the JSON's manifest) and the plan the one it
+    was planned from (plan_md5): a plan moved 0.5 m, edited actions, interlocks, joints or round table, a
+    move book marked all-clear or an edited MD5 is refused, exit 2 naming the file, before any work."""
+    edit, named = TAMPERED[what]
+    ov = _copy_set(planned, tmp_path / "set") + [f"execute.out={tmp_path / 'out'}", "execute.monte_carlo=false"]
+    edit(tmp_path / "set")
+    code, err = _stage(ov)
+    assert code == 2, err
+    assert named in err and ("changed since schedule wrote it" in err or "not the plan" in err), err
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())  # nothing written
+    assert "Traceback" not in err
+
+
+@pytest.mark.slow
+def test_malformed_planned_files_are_named_never_a_traceback(planned, tmp_path):
+    """A planned file that does not parse is refused naming the file and the place, also when its manifest was
+    made to agree (a forger's edit); a truncated or foreign move book likewise."""
+    from pipeline.round.move_file import load_book
+    from pipeline.round.settings import RoundSettings
+
+    ov = _copy_set(planned, tmp_path / "set") + [f"execute.out={tmp_path / 'out'}", "execute.monte_carlo=false"]
+    d = tmp_path / "set"
+    good = (d / "small_round.json").read_text()
+    (d / "small_round.json").write_text(good[: len(good) // 2])  # truncated JSON
+    from pipeline import execute
+
+    with pytest.raises(InputError, match=r"small_round.json: not valid JSON \(line \d+, column \d+"):
+        execute.run_execute(compose(ov), ov)
+    (d / "small_round.json").write_text(good)
+    text = (d / "small_trajectory.csv").read_text()
+    (d / "small_trajectory.csv").write_text(text[: int(len(text) * 0.6)])  # cut mid-row
+    _rewrite_manifest(d, "small_trajectory.csv")
+    code, err = _stage(ov)
+    assert code == 2 and "small_trajectory.csv: " in err and "Traceback" not in err, err
+    book = d / "small_moves.npz"
+    data = book.read_bytes()
+    for bad in (data[: len(data) // 3], b"not a zip at all"):
+        book.write_bytes(bad)
+        with pytest.raises(InputError, match="small_moves.npz: cannot read it as a move book"):
+            load_book(book, None, 6, RoundSettings())
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+@pytest.mark.slow
+def test_an_iredes_plan_is_executed_with_its_checks_running_on_its_holes(planned, tmp_path):
+    """The checker reads CSV plans only: for an IREDES plan the executor writes the holes it read, as CSV,
+    into the set (``<stem>_executed_plan.csv``, in the JSON's ``plan_holes``) and the checks run on them.
+
+    The set is the one schedule writes for the XML plan of the same holes (IREDES written with repr reads
+    back to the same floats, checked here), so the CSV plan's set is re-labelled (its JSON's plan and
+    plan_md5) rather than planned again (about 40 s)."""
+    import subprocess
+    import sys
+
+    from pipeline.core.config import PROJECT_ROOT
+    from pipeline.core.io import file_md5
+    from pipeline.plans.iredes import write_iredes_plan
+    from pipeline.plans.read import read_plan
+
+    ov = _copy_set(planned, tmp_path / "set")
+    d = tmp_path / "set"
+    write_iredes_plan(read_plan(d / "small.csv"), d / "small.xml")
+    a, b = read_plan(d / "small.csv").holes, read_plan(d / "small.xml").holes
+    cols = ["hole_id", "collar_x", "collar_y", "collar_z", "toe_x", "toe_y", "toe_z"]
+    pd.testing.assert_frame_equal(a[cols], b[cols])
+    doc = json.loads((d / "small_round.json").read_text())
+    doc.update(plan=str(d / "small.xml"), plan_md5=file_md5(d / "small.xml"))
+    (d / "small_round.json").write_text(json.dumps(doc))
+    ov = [o for o in ov if not o.startswith("plan=")] + [f"plan={d / 'small.xml'}", f"execute.out={tmp_path / 'out'}"]
+    from pipeline import execute
+
+    out = execute.run_execute(compose(ov), ov)
+    assert out["plan_holes"] == "small_executed_plan.csv"
+    for k in ("planned_draws", "realised"):
+        c = out["checks"][k]
+        assert c["exit"] == 0, out["checks"]
+        assert c["verdict"]["plan"] == "small_executed_plan.csv"  # the checks read the holes as read ...
+        assert c["verdict"]["holes"]["plan"] == 6 and c["verdict"]["holes"]["drilled"] == 6  # ... and judged them
+    holes = pd.read_csv(tmp_path / "out" / "small_executed_plan.csv", dtype={"hole_id": str})
+    pd.testing.assert_frame_equal(holes[cols], a[cols])
+    # the published set checks again on its own, the checker finding the holes from the JSON
+    p = subprocess.run([sys.executable, str(PROJECT_ROOT / "scripts" / "check_round.py"),
+                        str(tmp_path / "out" / "small_executed_trajectory.csv"), *ov, "--realised"],
+                       capture_output=True, text=True, cwd=PROJECT_ROOT)
+    assert p.returncode == 0, p.stderr
+    assert json.loads(p.stdout)["plan"].endswith("small_executed_plan.csv")
+
+
+@pytest.mark.slow
+def test_a_signal_during_the_checks_leaves_the_previous_set_and_no_running_run(planned, tmp_path, monkeypatch):
+    """SIGTERM or SIGINT while the checker runs: nothing unchecked is published (the previous set stays,
+    byte for byte), no stage folder is left, the run ends KILLED, exit 128 + signum. A check that cannot
+    judge the set (the checker's exit 2) or fails (exit 3) publishes nothing either."""
+    import signal
+
+    from mlflow.tracking import MlflowClient
+
+    from pipeline import execute
+    from pipeline.core.io import file_md5
+    from pipeline.core.signals import Terminated
+
+    out = tmp_path / "out"
+    ov = [*planned[1], f"execute.out={out}", "execute.monte_carlo=false"]
+    execute.run_execute(compose(ov), ov)  # the previous set
+    before = {p.name: file_md5(p) for p in out.iterdir()}
+
+    def interrupted(signum):
+        def check(args, what):
+            raise Terminated(signum)
+        return check
+
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        monkeypatch.setattr(execute, "_check", interrupted(signum))
+        with pytest.raises(SystemExit) as e:
+            execute.run_execute(compose(ov), ov)
+        assert e.value.code == 128 + signum
+        assert {p.name: file_md5(p) for p in out.iterdir()} == before  # no half-written or unchecked file
+    for code, exit_code in ((2, 2), (3, 3)):
+        monkeypatch.setattr(execute, "_check", lambda args, what, c=code: {"exit": c, "seconds": 0.0, "verdict": None,
+                                                                          "stderr": "check_round: planted"})
+        got, err = _stage(ov)
+        assert got == exit_code and "nothing published" in err, err
+        assert {p.name: file_md5(p) for p in out.iterdir()} == before
+    client = MlflowClient(f"sqlite:///{planned[0]}/mlflow.db")
+    runs = client.search_runs([e.experiment_id for e in client.search_experiments()],
+                              "tags.stage = 'execute'", order_by=["attributes.start_time DESC"], max_results=4)
+    assert [r.info.status for r in runs] == ["FAILED", "FAILED", "KILLED", "KILLED"]
+    every = [e.experiment_id for e in client.search_experiments()]
+    assert not client.search_runs(every, "attributes.status = 'RUNNING'")
+    assert not [p for p in out.iterdir() if p.name.endswith(".tmp")]  # no stage folder or temporary file left
+
+
+@pytest.mark.slow
+def test_unknown_and_out_of_range_replan_round_settings_are_refused(planned, tmp_path):
+    with pytest.raises(ConfigError, match="execute.replan_round.nope: unknown setting"):
+        run(planned, "+execute.replan_round.nope=1", folder=tmp_path)
+    with pytest.raises(ConfigError, match=r"execute.replan_round.postures = 100000: must be <= 64"):
+        run(planned, "+execute.replan_round.postures=100000", folder=tmp_path)
+    with pytest.raises(ConfigError, match=r"execution.high = 1e\+300: must be <= 100"):
+        run(planned, "execution.high=1e300", folder=tmp_path)
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("parse_name, node, match", [
+    ("execution", {"high": 1e300}, r"execution.high = 1e\+300: must be <= 100"),
+    ("execution", {"draws": 10**7}, r"execution.draws = 10000000: must be <= 10000"),
+    ("execution", {"factors": {"H1": 1e9}}, r"execution.factors.H1 = 1000000000.0: expected a factor in \(0, 100\]"),
+    ("round", {"postures": 100000}, r"round.postures = 100000: must be <= 64"),
+    ("round", {"posture_starts": 10**8}, r"round.posture_starts = 100000000: must be <= 1024"),
+    ("round", {"sample_m": 1e-9}, r"round.sample_m = 1e-09: must be >= 0.001"),
+    ("round", {"time_limit_s": 1e12}, r"round.time_limit_s = 1000000000000.0: must be <= 86400"),
+    ("round", {"sweep_more_bands_m": [1e300]}, r"round.sweep_more_bands_m\[0\] = 1e\+300"),
+])
+def test_size_and_duration_settings_have_ranges(parse_name, node, match):
+    from pipeline.execution.montecarlo import parse_execution
+    from pipeline.round.settings import parse_round
+
+    parse = {"execution": parse_execution, "round": parse_round}[parse_name]
+    with pytest.raises(ConfigError, match=match):
+        parse(node, parse_name)

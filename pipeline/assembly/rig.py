@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 
 from pipeline.assembly.build import build_tunnel, load_boom, safety_settings
-from pipeline.core.config import as_dict, load_group_file
+from pipeline.core.config import as_dict, load_group_file, project_path
 from pipeline.core.errors import ConfigError
 from pipeline.geometry.collision import SafetyDistances
 from pipeline.geometry.kinematics import Boom
@@ -145,3 +145,50 @@ def load_rig(name: str, tunnel: Tunnel, distances: SafetyDistances, points_per_c
     kinds' configs."""
     spec = rig_spec(name)
     return place_booms(spec, rig_booms(spec) if booms is None else booms, tunnel, distances, points_per_capsule, exact)
+
+
+def rig_record(cfg) -> dict:
+    """What a round is planned with, as plain data for its JSON (``planned_with``): the rig (name, d_boom and
+    each boom's name, kind, base and park as the rig file writes them) and the tunnel (kind; a horseshoe's
+    width and wall height, a profile's file and the MD5 of its content, so a file edited in place or another
+    file of the same name is told apart). ``execute`` and the independent checker compare it with their own."""
+    spec = rig_spec(cfg.rig)
+    node = rig_tunnel(cfg.rig, cfg.tunnel) if isinstance(cfg.rig, str) else as_dict(cfg.tunnel)
+    kind = node.get("kind", "horseshoe")
+    if kind == "profile":
+        from pipeline.core.io import file_md5
+
+        tunnel = {"kind": "profile", "file": str(node.get("file")), "md5": file_md5(project_path(node["file"]))}
+    else:
+        tunnel = {"kind": str(kind), "width": float(node["width"]), "wall_height": float(node["wall_height"])}
+    booms = [{"name": m.name, "boom": m.boom, "base": [float(v) for v in m.base], "park": [float(v) for v in m.park]}
+             for m in spec.mounts]
+    return {"rig": {"name": spec.name, "d_boom": float(spec.d_boom), "booms": booms}, "tunnel": tunnel}
+
+
+def record_differences(planned: dict, now: dict) -> list[str]:
+    """Where two :func:`rig_record` records differ (numbers within 1e-9; a file by its MD5, not its path), in
+    words; empty when they agree."""
+    import math
+
+    out: list[str] = []
+
+    def walk(a, b, where):
+        if isinstance(a, dict) and isinstance(b, dict):
+            keys = set(a) | set(b)
+            if "md5" in keys:  # a file by its content: the same profile under another path is the same tunnel
+                keys.discard("file")
+            for k in sorted(keys, key=str):
+                walk(a.get(k), b.get(k), f"{where}.{k}" if where else str(k))
+        elif isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+            for i, (x, y) in enumerate(zip(a, b, strict=True)):
+                walk(x, y, f"{where}[{i}]")
+        elif (isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool)
+              and not isinstance(b, bool)):
+            if not math.isclose(a, b, rel_tol=0, abs_tol=1e-9):
+                out.append(f"{where}: planned {a!r}, now {b!r}")
+        elif a != b:
+            out.append(f"{where}: planned {a!r}, now {b!r}")
+
+    walk(planned, now, "")
+    return out

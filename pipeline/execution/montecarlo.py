@@ -27,18 +27,24 @@ from pipeline.core.settings import parse, rule
 from pipeline.execution.actions import Actions
 from pipeline.execution.executor import Execution, execute
 
+# Bounds (conf/execution/default.yaml): a draw is (holes x actions) floats, each checked for d_boom by the
+# independent checker too, and a factor is a drilling duration over its spec time (issue 55: high=1e300
+# gave a 1.5e302 s makespan, exit 0)
+MAX_DRAWS = 10_000
+MAX_FACTOR = 100.0
+
 
 @dataclass(frozen=True)
 class ExecutionSettings:
     """``conf/execution/<name>.yaml`` (module docstring)."""
 
-    draws: int = field(default=1000, metadata=rule(ge=0))
-    low: float = field(default=0.7, metadata=rule(gt=0))
-    high: float = field(default=1.5, metadata=rule(gt=0))
-    seed: int = field(default=0, metadata=rule(ge=0))
-    stall_factor: float = field(default=3.0, metadata=rule(gt=0))
-    slow_factor: float = field(default=1.5, metadata=rule(gt=0))
-    quick_factor: float = field(default=0.7, metadata=rule(gt=0))
+    draws: int = field(default=1000, metadata=rule(ge=0, le=MAX_DRAWS))
+    low: float = field(default=0.7, metadata=rule(gt=0, le=MAX_FACTOR))
+    high: float = field(default=1.5, metadata=rule(gt=0, le=MAX_FACTOR))
+    seed: int = field(default=0, metadata=rule(ge=0, le=2**32 - 1))
+    stall_factor: float = field(default=3.0, metadata=rule(gt=0, le=MAX_FACTOR))
+    slow_factor: float = field(default=1.5, metadata=rule(gt=0, le=MAX_FACTOR))
+    quick_factor: float = field(default=0.7, metadata=rule(gt=0, le=MAX_FACTOR))
     stall_p: float = field(default=0.0, metadata=rule(ge=0, le=1))
     factors: dict[str, float] = field(default_factory=dict)
 
@@ -49,11 +55,11 @@ def parse_execution(node: Mapping, source: str = "execution") -> ExecutionSettin
         raise ConfigError(f"{source}.high = {s.high}: must be >= {source}.low = {s.low}")
     for h, f in s.factors.items():
         try:
-            ok = float(f) > 0 and np.isfinite(float(f))
+            ok = not isinstance(f, bool) and 0 < float(f) <= MAX_FACTOR
         except (TypeError, ValueError):
             ok = False
         if not ok:
-            raise ConfigError(f"{source}.factors.{h} = {f!r}: expected a finite factor > 0")
+            raise ConfigError(f"{source}.factors.{h} = {f!r}: expected a factor in (0, {MAX_FACTOR:g}]")
     return s
 
 

@@ -11,6 +11,7 @@ as the teacher's do. Measured in docs/benchmarks.md ("A distilled start").
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 
 import torch
@@ -20,6 +21,8 @@ from pipeline.core.settings import parse, rule
 from pipeline.geometry.kinematics import Boom, pose_errors
 from pipeline.learning.models import ACTIVATIONS, IKNet
 
+NETWORK_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9_.-]{0,63}")
+
 
 @dataclass(frozen=True)
 class DistillSettings:
@@ -27,20 +30,29 @@ class DistillSettings:
 
     teacher: str = "cuikm"
     name: str = "cuikm_start"
-    width: int = field(default=128, metadata=rule(ge=1))
-    depth: int = field(default=2, metadata=rule(ge=1))
+    width: int = field(default=128, metadata=rule(ge=1, le=4096))
+    depth: int = field(default=2, metadata=rule(ge=1, le=16))
     activation: str = field(default="relu", metadata=rule(choices=sorted(ACTIVATIONS)))
-    steps: int = field(default=10000, metadata=rule(ge=1))
-    batch_size: int = field(default=1024, metadata=rule(ge=1))
-    lr: float = field(default=2.0e-3, metadata=rule(gt=0))
+    steps: int = field(default=10000, metadata=rule(ge=1, le=10_000_000))
+    batch_size: int = field(default=1024, metadata=rule(ge=1, le=65_536))
+    lr: float = field(default=2.0e-3, metadata=rule(gt=0, le=1))
     lr_min: float = field(default=2.0e-5, metadata=rule(ge=0))
-    pool: int = field(default=100000, metadata=rule(ge=1))
-    val_size: int = field(default=5000, metadata=rule(ge=1))
-    seed: int = 0
+    pool: int = field(default=100000, metadata=rule(ge=1, le=1_000_000))
+    val_size: int = field(default=5000, metadata=rule(ge=1, le=1_000_000))
+    seed: int = field(default=0, metadata=rule(ge=0, le=2**32 - 1))
 
     @classmethod
     def from_config(cls, node) -> DistillSettings:
         settings = parse(cls, node, "distill")
+        for key in ("teacher", "name"):  # a file name in paths.data/models, never a path out of it
+            value = getattr(settings, key)
+            if not NETWORK_NAME.fullmatch(value):
+                raise ConfigError(f"distill.{key} = {value!r}: expected a network name (letters, digits, '_', '-', "
+                                  "'.'; 1-64 characters, not starting with '.'): it names <name>.pt in "
+                                  "paths.data/models, so no folder or '..' in it")
+        if settings.batch_size > settings.pool:
+            raise ConfigError(f"distill.batch_size = {settings.batch_size}: more than distill.pool = {settings.pool} "
+                              "holes to draw a batch from")
         if settings.name == settings.teacher:
             raise ConfigError(f"distill.name = {settings.name!r} is the teacher's name: the student would overwrite "
                               "the network it learns from")

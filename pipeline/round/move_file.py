@@ -19,6 +19,8 @@ margin is no certificate.
 from __future__ import annotations
 
 import json
+import zipfile
+import zlib
 from pathlib import Path as FilePath
 
 import numpy as np
@@ -72,6 +74,43 @@ def save_book(book: MoveBook, path) -> None:
             pair_key=pair_key, pair_value=pair_val)
 
 
+def _check_arrays(path, data: dict, book: MoveBook, joints_n: int) -> None:
+    """Every array :func:`save_book` writes is there with its shape; else an :class:`InputError` naming the file
+    and the array (a malformed book is refused, never a traceback)."""
+    def bad(name, why):
+        raise InputError(f"{path}: {name}: {why}; not a move book this executor can read (re-run schedule)")
+
+    for name in ("meta", "joints", "status", *(f"floor_{k}" for k in KINDS), "detour_key", "detour_len",
+                 "detour_points", "duration_key", "duration_s", "reason_key", "reason_text"):
+        if name not in data:
+            bad(name, "missing")
+    if data["meta"].shape != ():
+        bad("meta", f"shape {data['meta'].shape}, expected one text")
+    for k in KINDS:
+        if data[f"floor_{k}"].shape != book.floor[k].shape or data[f"floor_{k}"].dtype.kind != "f":
+            bad(f"floor_{k}", f"shape {data[f'floor_{k}'].shape} ({data[f'floor_{k}'].dtype}), expected "
+                              f"{book.floor[k].shape} floats")
+    for name, cols in (("detour_key", 3), ("duration_key", 3), ("reason_key", 3)):
+        if data[name].ndim != 2 or data[name].shape[1] != cols or data[name].dtype.kind not in "iu":
+            bad(name, f"shape {data[name].shape} ({data[name].dtype}), expected (n, {cols}) integers")
+    for key, val in (("duration_key", "duration_s"), ("reason_key", "reason_text"), ("detour_key", "detour_len")):
+        if data[val].ndim != 1 or len(data[val]) != len(data[key]):
+            bad(val, f"shape {data[val].shape}, expected one entry per row of {key} ({len(data[key])})")
+    lengths = data["detour_len"]
+    points = data["detour_points"]
+    if (lengths.dtype.kind not in "iu" or (lengths < 0).any() or points.ndim != 2 or points.shape[1] != joints_n
+            or int(lengths.sum()) != len(points)):
+        bad("detour_points", f"shape {points.shape} for detour lengths summing to {int(lengths.sum())}, expected "
+                             f"(sum, {joints_n})")
+    B = book.status.shape[0] if book.status.ndim else 0
+    if len(data["detour_key"]) and not ((data["detour_key"][:, 0] >= 0) & (data["detour_key"][:, 0] < B)).all():
+        bad("detour_key", f"a boom index outside 0..{B - 1}")
+    if "pair_key" in data or "pair_value" in data:
+        pk, pv = data.get("pair_key", np.zeros((0, 10))), data.get("pair_value", np.zeros((0, 2)))
+        if pk.ndim != 2 or pk.shape[1] != 10 or pv.ndim != 2 or pv.shape[1] != 2 or len(pk) != len(pv):
+            bad("pair_key", f"shapes {pk.shape} and pair_value {pv.shape}, expected (n, 10) and (n, 2)")
+
+
 def load_book(path, oracle, n_holes: int, settings: RoundSettings) -> tuple[MoveBook | None, str]:
     """The book of ``path`` for ``oracle`` (its detours set on the oracle), or None and why not."""
     path = FilePath(path)
@@ -80,10 +119,14 @@ def load_book(path, oracle, n_holes: int, settings: RoundSettings) -> tuple[Move
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as e:
-        raise InputError(f"{path}: cannot read it as a move book ({e})") from e
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:  # truncated, not an .npz, pickled
+        raise InputError(f"{path}: cannot read it as a move book ({type(e).__name__}: {e})") from None
     book = MoveBook(oracle, n_holes, settings)
-    meta = json.loads(str(data["meta"]))
+    _check_arrays(path, data, book, joints_n=int(oracle.joints[0].shape[-1]) if len(oracle.joints) else 0)
+    try:
+        meta = json.loads(str(data["meta"]))
+    except (ValueError, RecursionError) as e:
+        raise InputError(f"{path}: meta: not JSON ({e})") from None
     if meta != json.loads(json.dumps(_meta(book))):
         return None, f"{path}: made under other settings ({meta}); every move is looked at again"
     joints = np.stack([q.numpy() for q in oracle.joints])

@@ -38,7 +38,9 @@ SUFFIXES = {"round": "_round.csv", "trajectory": "_trajectory.csv", "json": "_ro
 # the executed round (pipeline.execute): realised files, the draws, and the figures
 EXECUTED = {"round": "_executed_round.csv", "trajectory": "_executed_trajectory.csv", "json": "_executed.json",
             "actions": "_executed_actions.csv", "interlocks": "_executed_interlocks.csv",
-            "draws": "_draws.csv", "makespans": "_executed_makespans.png", "replay": "_executed_replay.html"}
+            "draws": "_draws.csv", "makespans": "_executed_makespans.png", "replay": "_executed_replay.html",
+            # an IREDES plan's holes as the executor read them, as CSV: the independent checker's plan
+            "plan": "_executed_plan.csv"}
 
 
 @dataclass(frozen=True)
@@ -99,10 +101,14 @@ def round_paths(plan_path: str | Path, out: str | Path | None, inputs: Iterable[
 
 
 def write_round_set(paths: RoundPaths, summary: dict, writers: Mapping[str, Callable[[Path], None]],
-                    log_staged: Callable[[dict[str, Path]], None] | None = None) -> dict:
+                    log_staged: Callable[[dict[str, Path]], None] | None = None,
+                    check: Callable[[dict[str, Path]], dict] | None = None) -> dict:
     """Stage every file ``writers`` names (kind -> ``write(path)``), then the summary with the MD5 of
-    each (``files``), call ``log_staged`` (kind -> staged path: MLflow logs from there), and publish the
-    set under its lock; an earlier set's files of kinds not written are removed. Returns the summary."""
+    each (``files``); call ``check`` (kind -> staged path, the summary's among them) and put the keys it
+    returns into the summary, written again in the stage; call ``log_staged`` (kind -> staged path: MLflow
+    logs from there), and publish the set under its lock; an earlier set's files of kinds not written are
+    removed. Returns the summary. Whatever ``check`` raises (a check that could not run, an interrupt)
+    publishes nothing: the previous set stays as it was and the stage is removed."""
     unknown = (set(writers) - set(paths.suffixes)) | (set(writers) & {"json"})  # the summary is written here, last
     if unknown:
         raise ValueError(f"write_round_set: not a file of the set written by a writer: {sorted(unknown)}")
@@ -115,6 +121,11 @@ def write_round_set(paths: RoundPaths, summary: dict, writers: Mapping[str, Call
         summary = {**summary, "files": {paths[k].name: file_md5(p) for k, p in staged.items()}}
         staged["json"] = stage / paths["json"].name
         write_json(summary, staged["json"])
+        if check is not None:  # on the staged files: nothing is published that was not checked
+            more = check(dict(staged))
+            if more:
+                summary = {**summary, **more}
+                write_json(summary, staged["json"])
         if log_staged is not None:
             log_staged(dict(staged))
         stale = [p for k, p in paths.all().items() if k not in staged]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -17,6 +18,7 @@ import urllib.error
 import urllib.request
 from collections.abc import Mapping
 
+from pipeline.core.errors import ConfigError
 from pipeline.tracking.runs import TrackingSettings, prepare_store
 
 
@@ -55,18 +57,73 @@ def wait_until_up(base: str, timeout_s: float = 120.0, proc: subprocess.Popen | 
     raise TimeoutError(f"no MLflow UI answered at {base} within {timeout_s:.0f} s")
 
 
+def port_free(host: str, port: int) -> bool:
+    """Whether a server could listen on ``host:port`` now (a socket binds there, with SO_REUSEADDR as web
+    servers set it: a port another process listens on is taken, one in TIME_WAIT is not)."""
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except OSError:
+        return True  # an unknown host: the UI names it itself
+    family, kind, proto, _, addr = infos[0]
+    with socket.socket(family, kind, proto) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(addr)
+        except OSError:
+            return False
+    return True
+
+
+def listens_on(proc: subprocess.Popen, port: int) -> bool:
+    """Whether ``proc`` or one of its children (mlflow ui runs its web server as a child) listens on ``port``."""
+    import psutil
+
+    try:
+        root = psutil.Process(proc.pid)
+        tree = [root, *root.children(recursive=True)]
+    except psutil.NoSuchProcess:
+        return False
+    for p in tree:
+        try:
+            conns = p.net_connections(kind="inet")
+        except (psutil.NoSuchProcess, psutil.AccessDenied):
+            continue
+        if any(c.status == psutil.CONN_LISTEN and c.laddr and c.laddr.port == port for c in conns):
+            return True
+    return False
+
+
+def _taken(settings: TrackingSettings) -> ConfigError:
+    host, port = settings.ui_host, settings.ui_port
+    return ConfigError(f"tracking.ui_port = {port}: {host}:{port} is in use by another process (another MLflow UI "
+                       "there would show another store's runs); stop it, or choose a free port: "
+                       f"tracking.ui_port={port + 1}")
+
+
 def start(settings: TrackingSettings) -> tuple[subprocess.Popen | None, str]:
     """Start the UI on the store (none for an MLflow server URI: it is its own UI) and return it with
-    the URL of the configured experiment's runs table; the experiment is created if missing."""
+    the URL of the configured experiment's runs table; the experiment is created if missing. A port another
+    process listens on is refused (:class:`ConfigError` naming it), before the UI starts and again once it
+    answers (the answer must come from this UI, never from another store's)."""
+    server = settings.uri.startswith(("http://", "https://"))
+    if not server and not port_free(settings.ui_host, settings.ui_port):  # before any work
+        raise _taken(settings)
     exp_id = prepare_store(settings)
-    if settings.uri.startswith(("http://", "https://")):
+    if server:
         return None, runs_url(settings.uri, exp_id)
     base = f"http://{settings.ui_host}:{settings.ui_port}"
     # its own process group: mlflow ui runs its web server as a child, and stop() ends both
     proc = subprocess.Popen(ui_command(settings, settings.ui_host, settings.ui_port), start_new_session=True,
                             env=ui_environment())
     try:
-        wait_until_up(base, proc=proc)
+        try:
+            wait_until_up(base, proc=proc)
+        except RuntimeError:
+            if not port_free(settings.ui_host, settings.ui_port):  # taken between the check and the UI's start
+                raise _taken(settings) from None
+            raise
+        if not listens_on(proc, settings.ui_port):  # what answered is another server
+            raise _taken(settings)
     except BaseException:
         stop(proc)
         raise

@@ -1,5 +1,6 @@
 """The command: read, check, print one JSON object; exit 0 clean, 1 violations (or a clearance that
-cannot be certified), 2 an input that cannot be judged.
+cannot be certified), 2 an input that cannot be judged (a file, an argument or a setting, named on stderr),
+3 a failure of the checker's own (its traceback on stderr): never reported as clean or as violations.
 
 The JSON names the tunnel checked against (``tunnel``: the horseshoe's width and wall height, or a
 profile's file and vertex count) and, where a plan is checked, the navigation that took it into the rig
@@ -12,6 +13,7 @@ import dataclasses
 import json
 import math
 import sys
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -24,13 +26,16 @@ from .execute import draws, graph, read_draws
 from .executed import check as check_executed
 from .files import read_plan, read_round_table, read_summary, read_trajectory
 from .realised import follow
-from .settings import CONF_DIR, settings
+from .settings import CONF_DIR, differences, settings
 from .sweep import Sweep
+
+EXIT_INPUT = 2  # an input (file, argument, setting) the checker cannot judge: named on stderr
+EXIT_INTERNAL = 3  # the checker itself failed (a bug, or memory): its traceback on stderr; no verdict
 
 USAGE = """python scripts/check_round.py <stem>_trajectory.csv [hydra overrides, as the stage's: rig=twin ...]
         [--round F] [--summary F] [--plan F] [--spacing-m 0.005] [--collar-tol-mm 0.1] [--angle-tol-deg A]
         [--levels 4] [--trajectory-only] [--actions F] [--interlocks F] [--execute N] [--seed S] [--draws F]
-        [--realised]"""
+        [--realised] [--other-tunnel]"""
 
 
 # a set's file names after its stem: the planned set, and the realised one the executor writes
@@ -60,12 +65,40 @@ def _siblings(trajectory: Path, round_csv, summary, plan, realised: bool = False
     return round_csv, summary, plan
 
 
+def _planned_with(doc: dict, path: Path, st, other_tunnel: bool = False):
+    """The round's ``planned_with`` (rig, booms, tunnel) held to the composed settings': an :class:`InputError`
+    naming each difference, else ``"matches"`` (``"not recorded"`` for a JSON from before it was written).
+    ``other_tunnel``: a tunnel other than the planned one is what is asked for (a what-if: the drift as
+    surveyed); then both are returned, for the report. Another rig is refused always."""
+    planned = doc.get("planned_with")
+    if planned is None:
+        return "not recorded"
+    if not isinstance(planned, dict) or not isinstance(planned.get("rig"), dict):
+        raise InputError(f"{path}: planned_with = {str(planned)[:200]!r}: expected the rig and tunnel record")
+    rig = differences(planned["rig"], st.record["rig"], "rig")
+    tunnel = differences(planned.get("tunnel"), st.record["tunnel"], "tunnel")
+    diff = rig + ([] if other_tunnel else tunnel)
+    if diff:
+        shown = "; ".join(diff[:6]) + (f"; and {len(diff) - 6} more" if len(diff) > 6 else "")
+        raise InputError(f"{path}: the round was planned with another {'rig' if rig else 'tunnel'} than the settings "
+                         f"compose ({shown}): pass the stage's own overrides (rig=..., tunnel=..., tunnel.file=...)"
+                         + ("" if rig else ", or --other-tunnel to check it in this tunnel on purpose"))
+    if tunnel:
+        return {"tunnel": "other than planned (--other-tunnel)", "planned": planned.get("tunnel"),
+                "checked": st.record["tunnel"]}
+    return "matches"
+
+
 def _plan_path(summary: dict, path: Path, plan) -> Path:
     if plan:
         return Path(plan)
     p = summary.get("plan")
     if not isinstance(p, str) or not p:
         raise InputError(f"{path}: no `plan` field naming the drill plan: give --plan")
+    holes = summary.get("plan_holes")
+    if p.lower().endswith(".xml") and isinstance(holes, str) and holes and Path(holes).name == holes:
+        # an IREDES plan: the holes the executor read from it, as CSV, beside the JSON (docs/round.md)
+        return path.parent / holes
     p = Path(p)
     return p if p.is_absolute() else CONF_DIR.parent / p  # the stage resolves a relative plan in the checkout
 
@@ -153,7 +186,7 @@ def _messages(sw: Sweep, res, st, ctx) -> tuple[list[str], list[str]]:
 def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spacing_m: float = 0.005,
           collar_tol_mm: float = 0.1, angle_tol_deg: float | None = None, levels: int = 4,
           trajectory_only: bool = False, actions=None, interlocks=None, execute: int | None = None,
-          seed: int = 0, realised: bool = False, draws_file=None) -> dict:
+          seed: int = 0, realised: bool = False, draws_file=None, other_tunnel: bool = False) -> dict:
     """Check one round's files; returns the report (raises :class:`InputError` on input it cannot judge).
 
     ``trajectory_only``: the motion alone (clearances, limits, speeds, park, the planner's flags), for a
@@ -161,14 +194,7 @@ def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spa
     ``realised``: an executed round's set (``<stem>_executed_trajectory.csv`` and its siblings,
     :mod:`round_check.realised`). ``draws_file``: a planned round executed under exactly that file's
     draws (and the nominal one; with ``execute``, the checker's own too)."""
-    for name, v in (("--spacing-m", spacing_m), ("--collar-tol-mm", collar_tol_mm)) + (
-            (("--angle-tol-deg", angle_tol_deg),) if angle_tol_deg is not None else ()):
-        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-            raise InputError(f"{name} {v!r}: must be a positive number")
-    if not (isinstance(levels, int) and 0 <= levels <= 10):
-        raise InputError(f"--levels {levels!r}: must be an integer in 0..10")
-    if execute is not None and not (isinstance(execute, int) and execute >= 0):
-        raise InputError(f"--execute {execute!r}: must be a whole number of draws >= 0")
+    _arguments(spacing_m, collar_tol_mm, angle_tol_deg, levels, execute, seed)
     if realised and (execute is not None or draws_file):
         # a realised set ran once, under the rock's durations: it is judged at its own times
         raise InputError(f"{'--execute' if execute is not None else '--draws'} with --realised: drawn durations are "
@@ -188,6 +214,7 @@ def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spa
     if doc.get("rig") not in (None, st.rig):
         raise InputError(f"{summary_path}: the round was planned for rig {doc['rig']!r}, the settings compose rig "
                          f"{st.rig!r}: pass rig={doc['rig']} (and the stage's other overrides)")
+    same = _planned_with(doc, summary_path, st, other_tunnel)
     if realised and doc.get("realised") is not True:
         raise InputError(f"{summary_path}: no \"realised\": true: not a realised set (a planned one is checked "
                          "without --realised)")
@@ -230,10 +257,40 @@ def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spa
                               "factor_per_hole": hole_stats["_factors"]["per_hole"],
                               "interrupted": hole_stats["_holes"].pop("interrupted")}
     report.update({"round": str(round_csv), "summary": str(summary_path), "plan": str(plan_path),
-                   "navigation": st.navigation.doc,
+                   "navigation": st.navigation.doc, "planned_with": same,
                    "collar_tol_mm": collar_tol_mm, "angle_tol_deg": math.degrees(angle_tol),
                    "json_makespan_s": float(doc["makespan_s"]), "holes": hole_stats["_holes"]})
     return report
+
+
+# bounds of the arguments (docs/round.md, "Output and exit codes"): outside them a check would only run out of
+# memory or time (--spacing-m 1e-9 samples every body point each nanometre), never judge better
+SPACING_M = (1e-3, 1.0)
+MAX_DRAWS = 10_000  # --execute: random draws, each swept for d_boom (the stage's execution.draws has the same bound)
+MAX_SEED = 2**32 - 1
+
+
+def _arguments(spacing_m, collar_tol_mm, angle_tol_deg, levels, execute, seed) -> None:
+    """Each argument within its range, before any file is read: an :class:`InputError` naming it otherwise."""
+    def number(v):
+        return not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+
+    def whole(v):
+        return not isinstance(v, bool) and isinstance(v, int)
+
+    if not (number(spacing_m) and SPACING_M[0] <= spacing_m <= SPACING_M[1]):
+        raise InputError(f"--spacing-m = {spacing_m!r}: must be a number in [{SPACING_M[0]:g}, {SPACING_M[1]:g}] m "
+                         "(the most a body point moves between two samples; the certificate refines where needed)")
+    if not (number(collar_tol_mm) and collar_tol_mm > 0):
+        raise InputError(f"--collar-tol-mm = {collar_tol_mm!r}: must be a number > 0")
+    if angle_tol_deg is not None and not (number(angle_tol_deg) and 0 < angle_tol_deg <= 180):
+        raise InputError(f"--angle-tol-deg = {angle_tol_deg!r}: must be a number in (0, 180]")
+    if not (whole(levels) and 0 <= levels <= 10):
+        raise InputError(f"--levels = {levels!r}: must be an integer in 0..10")
+    if execute is not None and not (whole(execute) and 0 <= execute <= MAX_DRAWS):
+        raise InputError(f"--execute = {execute!r}: must be a whole number of draws in 0..{MAX_DRAWS}")
+    if not (whole(seed) and 0 <= seed <= MAX_SEED):
+        raise InputError(f"--seed = {seed!r}: must be a whole number in 0..{MAX_SEED} (numpy's seed)")
 
 
 def _read_execution(st, trajectory: Path, rows, actions, interlocks, execute, realised: bool = False):
@@ -334,6 +391,9 @@ def main(argv=None) -> int:
     ap.add_argument("--realised", action="store_true",
                     help="a realised set (<stem>_executed_trajectory.csv ...): drills at their own factor, the "
                          "actions' realised times against the rows and the interlocks")
+    ap.add_argument("--other-tunnel", action="store_true",
+                    help="check in the composed tunnel though the round was planned in another (a what-if, e.g. the "
+                         "drift as surveyed); without it a round planned in another tunnel is refused (exit 2)")
     args = ap.parse_intermixed_args(argv)
     bad = [o for o in args.overrides if "=" not in o]
     if bad:
@@ -342,9 +402,14 @@ def main(argv=None) -> int:
     try:
         out = check(args.trajectory, args.overrides, args.round_csv, args.summary, args.plan, args.spacing_m,
                     args.collar_tol_mm, args.angle_tol_deg, args.levels, args.trajectory_only, args.actions,
-                    args.interlocks, args.execute, args.seed, args.realised, args.draws_file)
+                    args.interlocks, args.execute, args.seed, args.realised, args.draws_file, args.other_tunnel)
     except InputError as e:
         print(f"check_round: {e}", file=sys.stderr)
-        return 2
+        return EXIT_INPUT
+    except Exception:  # noqa: BLE001 - a fault of the checker's own: neither clean (0) nor violations (1)
+        traceback.print_exc()
+        print("check_round: internal error (the traceback above): the round was not judged; exit 3 is neither "
+              "clean (0) nor violations (1)", file=sys.stderr)
+        return EXIT_INTERNAL
     print(json.dumps(out, indent=1))
     return 1 if out["violations"] or out["not_certified"] else 0

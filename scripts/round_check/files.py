@@ -2,6 +2,11 @@
 
 Rows are named by file line (the header is line 1). The trajectory file is spec section 7's: columns
 ``boom, t, q1 .. q8, event, hole_id``, each boom's rows in strictly increasing t.
+
+Sizes are bounded before a file is parsed, so a malformed file is named, never a reason to run out of
+memory: a CSV over :data:`MAX_CSV_MB`, a line over :data:`MAX_LINE_BYTES` (a 200 MB cell once took the
+checker to 8.9 GB: text columns become fixed-width numpy strings, rows x longest cell), a used column's
+cell over :data:`MAX_CELL_CHARS`, a round JSON over :data:`MAX_JSON_MB`.
 """
 
 from __future__ import annotations
@@ -14,6 +19,11 @@ import numpy as np
 import pandas as pd
 
 from .errors import InputError
+
+MAX_CSV_MB = 256.0  # a CSV input (trajectory, round table, plan, actions, draws, ...): far above any round's
+MAX_LINE_BYTES = 64 * 1024  # one CSV line; a trajectory row is ~200 bytes
+MAX_CELL_CHARS = 256  # one cell of a column the checker uses (ids, events, numbers)
+MAX_JSON_MB = 64.0  # the round JSON; a round's is tens of kB
 
 EVENTS = {"park", "move", "move_unclear", "collar", "drill", "retract", "wait", "done"}
 HOLE_EVENTS = ("collar", "drill", "retract")
@@ -33,9 +43,41 @@ class BoomRows:
     line: np.ndarray  # (n,) file line of each row
 
 
+def _longest_line(path: Path) -> tuple[int, int]:
+    """(length in bytes, 1-based line number) of the file's longest line, read in blocks (no line held whole)."""
+    longest, at, line, run = 0, 1, 1, 0
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            parts = block.split(b"\n")
+            for k, part in enumerate(parts):
+                run += len(part)
+                if k < len(parts) - 1:  # a line ends here
+                    if run > longest:
+                        longest, at = run, line
+                    line, run = line + 1, 0
+    if run > longest:
+        longest, at = run, line
+    return longest, at
+
+
+def check_size(path: Path, what: str, max_mb: float | None = None, lines: bool = True) -> None:
+    """Refuse (naming the file, and the line) a file too large to judge, before it is parsed (``max_mb``:
+    default :data:`MAX_CSV_MB`)."""
+    max_mb = MAX_CSV_MB if max_mb is None else max_mb
+    size = path.stat().st_size
+    if size > max_mb * 1e6:
+        raise InputError(f"{path}: {size / 1e6:.1f} MB, over the checker's {max_mb:g} MB for a {what}; not read")
+    if lines:
+        n, line = _longest_line(path)
+        if n > MAX_LINE_BYTES:
+            raise InputError(f"{path}: line {line} is {n} bytes long, over the checker's {MAX_LINE_BYTES} for a "
+                             f"{what} line; not read")
+
+
 def _table(path: Path, what: str) -> pd.DataFrame:
     if not path.is_file():
         raise InputError(f"{path}: no such {what}")
+    check_size(path, what)
     try:
         df = pd.read_csv(path, dtype=str, keep_default_na=False)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
@@ -45,9 +87,16 @@ def _table(path: Path, what: str) -> pd.DataFrame:
 
 
 def _require(df: pd.DataFrame, cols, path: Path) -> None:
+    """The columns ``cols`` are there, and none of their cells is longer than :data:`MAX_CELL_CHARS`."""
     missing = [c for c in cols if c not in df.columns]
     if missing:
-        raise InputError(f"{path}: missing column(s) {missing}; found {list(df.columns)}")
+        raise InputError(f"{path}: missing column(s) {missing}; found {list(df.columns)}"[:2000])
+    for c in cols:
+        n = df[c].str.len().to_numpy()
+        if len(n) and n.max() > MAX_CELL_CHARS:
+            i = int(n.argmax())
+            raise InputError(f"{path}: row {i + 2}: the {c} cell is {int(n[i])} characters long, over the checker's "
+                             f"{MAX_CELL_CHARS}: not a value of that column")
 
 
 def _numbers(df: pd.DataFrame, cols, path: Path, who: pd.Series | None = None,
@@ -131,9 +180,10 @@ def read_round_table(path: Path, realised: bool = False) -> pd.DataFrame:
 def read_summary(path: Path) -> dict:
     if not path.is_file():
         raise InputError(f"{path}: no such round JSON")
+    check_size(path, "round JSON", MAX_JSON_MB, lines=False)
     try:
         doc = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
         raise InputError(f"{path}: not readable JSON: {e}") from None
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a JSON object")
@@ -155,7 +205,7 @@ def read_plan(path: Path) -> Plan:
     NaN coordinates: the planner reports such a row as ``invalid`` and does not drill it."""
     if path.suffix.lower() == ".xml":
         raise InputError(f"{path}: an IREDES plan; the independent checker reads CSV plans only: pass the same holes "
-                         "as CSV with --plan")
+                         "as CSV with --plan (the executor writes them into its set: <stem>_executed_plan.csv)")
     df = _table(path, "drill plan")
     _require(df, PLAN_COLUMNS, path)
     ids = df["hole_id"].str.strip()

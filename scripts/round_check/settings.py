@@ -51,6 +51,7 @@ class Settings:
     retract_m_per_s: float
     tunnel: Horseshoe | Profile | None = None  # what the sweep measures against (None: the horseshoe above)
     navigation: Navigation | None = None  # the plan frame's transform (None: the rig frame)
+    record: dict | None = None  # the rig and tunnel composed, as a round JSON's `planned_with` has them (record())
 
     def __post_init__(self):
         if self.tunnel is None:
@@ -138,6 +139,42 @@ def _calibrated(cfg: dict, rig: dict) -> tuple[dict[str, tuple[str, dict]], tupl
     return {name: (f"boom_models.{name}", _model_file(f"boom_models.{name}", v)) for name, v in per.items()}, by_kind
 
 
+def record(rig: dict, tunnel: dict) -> dict:
+    """The composed rig and tunnel as the stage records them in the round JSON (``planned_with``): the rig's
+    name, d_boom and each boom's name, kind, base and park as its file writes them; the tunnel's kind and a
+    horseshoe's width and wall height, or a profile's file and the MD5 of its content (read here)."""
+    import hashlib
+
+    kind = tunnel.get("kind", "horseshoe" if "width" in tunnel else None)
+    if kind == "profile":
+        file = str(tunnel.get("file"))
+        path = Path(file) if Path(file).is_absolute() else CONF_DIR.parent / file
+        t = {"kind": "profile", "file": file, "md5": hashlib.md5(path.read_bytes()).hexdigest()}
+    else:
+        t = {"kind": str(kind), "width": float(tunnel["width"]), "wall_height": float(tunnel["wall_height"])}
+    booms = [{"name": str(b.get("name")), "boom": str(b.get("boom")), "base": [float(v) for v in b.get("base")],
+              "park": [float(v) for v in b.get("park")]} for b in rig.get("booms") or []]
+    return {"rig": {"name": str(rig.get("name")), "d_boom": float(rig.get("d_boom")), "booms": booms}, "tunnel": t}
+
+
+def differences(planned, now, where: str = "") -> list[str]:
+    """Where a round's ``planned_with`` and :func:`record` of the composed settings differ (numbers within
+    1e-9; a profile by its content's MD5, not its path), in words."""
+    if isinstance(planned, dict) and isinstance(now, dict):
+        keys = set(planned) | set(now)
+        if "md5" in keys:
+            keys.discard("file")
+        return [d for k in sorted(keys, key=str)
+                for d in differences(planned.get(k), now.get(k), f"{where}.{k}" if where else str(k))]
+    if isinstance(planned, list) and isinstance(now, list) and len(planned) == len(now):
+        return [d for i, (a, b) in enumerate(zip(planned, now, strict=True))
+                for d in differences(a, b, f"{where}[{i}]")]
+    numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (planned, now))
+    if numbers and abs(planned - now) <= 1e-9:
+        return []
+    return [] if (not numbers and planned == now) else [f"{where}: planned {planned!r}, composed {now!r}"]
+
+
 def settings(overrides: list[str]) -> Settings:
     cfg = compose(overrides)
     rig, motion, safety, tunnel = cfg["rig"], cfg["motion"], cfg["safety"], cfg["tunnel"]
@@ -179,7 +216,7 @@ def settings(overrides: list[str]) -> Settings:
     return Settings(
         rig=str(rig.get("name")), d_boom=_number(rig, "d_boom", "rig", positive=False), booms=booms,
         half_width=shape.half_width if horseshoe else None, wall_height=shape.wall_height if horseshoe else None,
-        tunnel=shape, navigation=read_navigation(cfg.get("navigation"), CONF_DIR.parent),
+        tunnel=shape, navigation=read_navigation(cfg.get("navigation"), CONF_DIR.parent), record=record(rig, tunnel),
         safety={k: _number(safety, k, "safety", positive=False) for k in ("self", "wall", "ground", "arch")},
         collaring_s=_number(drilling, "collaring_s", "motion.drilling", positive=False),
         rate_m_per_s=_number(drilling, "rate_m_per_min", "motion.drilling") / 60.0,
