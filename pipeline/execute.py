@@ -15,8 +15,9 @@ and
    instance rebuilt from the plan and the rig as ``schedule`` builds it) or going on with its own actions;
 3. writes the executed set (``<stem>_executed_trajectory.csv`` in the spec-7 format,
    ``_executed_actions.csv`` with the executed times, ``_executed_interlocks.csv``, ``_executed_round.csv``,
-   ``_executed.json``, ``_executed_makespans.png``, ``_executed_replay.html``), published whole and never
-   over the planned files;
+   ``_executed.json``, ``_executed_makespans.png``, ``_executed_replay.html``, and the as-drilled log
+   ``_executed_quality.xml``: IREDES DRPQual, each hole where the rig's real boom drilled it, in the plan frame,
+   :mod:`pipeline.execution.as_drilled`), published whole and never over the planned files;
 4. checks with the independent checker (``scripts/check_round.py``, a separate process that imports
    nothing of ``pipeline``), on the staged set before it is published: the planned set on exactly the
    draws (``--draws``), and the realised set (``--realised``); their verdicts go into the JSON. For an
@@ -36,6 +37,7 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
+from datetime import datetime
 from pathlib import Path
 
 import hydra
@@ -43,7 +45,7 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig
 
-from pipeline.assembly.rig import composed_rig, model_files, rig_record
+from pipeline.assembly.rig import composed_rig, model_files, rig_record, true_rig_booms
 from pipeline.calibration.model_file import model_setting
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError, InputError
@@ -57,11 +59,13 @@ from pipeline.execution.actions import (
     read_actions,
     read_interlocks,
 )
+from pipeline.execution.as_drilled import drilled_holes
 from pipeline.execution.executed import draws_table, executed_round_table, long_holes
 from pipeline.execution.executor import execute
 from pipeline.execution.interrupt import interrupted_round, standing
 from pipeline.execution.montecarlo import draws, fixed_factors, parse_execution, run, summary
 from pipeline.execution.trajectory import action_rows, retimed
+from pipeline.plans.drpqual import write_quality_log
 from pipeline.plans.model import COLLAR
 from pipeline.plans.navigation import NavigationSettings, same_navigation
 from pipeline.plans.read import read_plan_in_rig_frame
@@ -94,6 +98,7 @@ class ExecuteSettings:
     replay: bool = True
     replay_frames: int = field(default=400, metadata=rule(ge=2, le=10_000))
     progress: bool = True
+    start_time: str = "2026-01-01T07:00:00"  # the round's start on the clock: the as-drilled log's times
 
 
 def parse_execute(cfg: DictConfig) -> tuple[ExecuteSettings, InterruptSettings]:
@@ -106,6 +111,11 @@ def parse_execute(cfg: DictConfig) -> tuple[ExecuteSettings, InterruptSettings]:
         raise ConfigError(f"execute.draw = {s.draw!r}: expected nominal or a whole number (the k-th random draw)")
     if (inter.hole is None) != (inter.at_s is None):
         raise ConfigError("execute.interrupt: set both hole and at_s (or neither)")
+    try:
+        datetime.fromisoformat(s.start_time)
+    except ValueError:
+        raise ConfigError(f"execute.start_time = {s.start_time!r}: expected an ISO 8601 date and time, e.g. "
+                          "2026-01-01T07:00:00") from None
     return s, inter
 
 
@@ -340,6 +350,7 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
                         [plan_path, *planned.all().values(), *map(project_path, model_files(cfg))], EXECUTED)
     require_writable(files.folder, "execute.out (its folder)")
     rig = composed_rig(cfg, model_setting)
+    true_booms, true_source = true_rig_booms(rig, execution.true_boom, execution.true_boom_model, model_setting)
     doc = _planned_doc(planned["json"])
     if doc.get("rig") != rig.name:
         raise ConfigError(f"rig = {rig.name}: the planned round {planned['json']} is of rig {doc.get('rig')!r}")
@@ -456,6 +467,15 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
                     "status": "interrupted" if interrupted else "complete"})
         executed_acts = actions_table(type(r_acts)(r_acts.booms, r_acts.hole_ids, r_acts.boom, r_acts.index,
                                                    r_acts.kind, r_acts.hole, r_acts.src, r_acts.dst, start, end))
+        drilling = as_dict(cfg.motion)["drilling"]
+        drilled = drilled_holes(r_acts, r_rows, start, end, plan, np.array([m.base for m in rig.booms], float),
+                                true_booms, interrupted, factor, float(drilling["collaring_s"]),
+                                float(drilling["rate_m_per_min"]) / 60.0, datetime.fromisoformat(settings.start_time))
+        out["as_drilled"] = {"boom": true_source, "holes": len(drilled),
+                             "interrupted": int((drilled["status"] == "Interrupted").sum())}
+        writers["quality"] = lambda p: write_quality_log(drilled, p, plan_id=plan.plan_id or plan_path.stem,
+                                                         plan_name=plan.name or plan_path.stem,
+                                                         created=datetime.fromisoformat(settings.start_time))
         writers.update({"trajectory": lambda p: write_csv(realised_traj, p),
                         "round": lambda p: write_csv(spreadsheet_safe(r_table), p),
                         "actions": lambda p: write_csv(spreadsheet_safe(executed_acts), p),

@@ -433,3 +433,46 @@ def test_size_and_duration_settings_have_ranges(parse_name, node, match):
     parse = {"execution": parse_execution, "round": parse_round}[parse_name]
     with pytest.raises(ConfigError, match=match):
         parse(node, parse_name)
+
+
+@pytest.mark.slow
+def test_the_as_drilled_log_is_where_the_true_boom_drilled(planned, tmp_path):
+    """execution.true_boom_model: every hole of the executed round logged (IREDES DRPQual, documented checksum),
+    its collar the true boom's forward kinematics at the joints the drill rows hold (plus the boom's base),
+    within 0.01 mm, its toe the hole's length along the true drilling direction; read back by the quality stage
+    it is off the plan at the field level. Without it, the log is the plan (the planning model drills it)."""
+    import torch
+
+    from pipeline.assembly.build import load_boom
+    from pipeline.calibration.error_model import BoomWithErrors, ErrorLevel, draw_errors
+    from pipeline.calibration.model_file import save_model
+    from pipeline.plans.as_drilled import deviations
+    from pipeline.plans.drpqual import read_quality_log
+
+    tmp, _ = planned
+    jumbo8 = load_boom("jumbo8")
+    twists = draw_errors(jumbo8, ErrorLevel(angle_deg=0.2, tilt_deg=0.2, offset_mm=5.0), seed=13)
+    save_model(tmp_path / "true_boom.yaml", jumbo8, twists)
+    out = run(planned, "execute.draw=nominal", f"execution.true_boom_model={tmp_path / 'true_boom.yaml'}",
+              "execute.monte_carlo=false", folder=tmp_path / "true")
+    assert out["as_drilled"]["holes"] == 6 and out["as_drilled"]["boom"].startswith("execution.true_boom_model=")
+    log = read_quality_log(tmp_path / "true" / "small_executed_quality.xml")
+    assert log.checksum == "verified" and log.checksum_convention == "documented"
+    traj = pd.read_csv(tmp_path / "true" / "small_executed_trajectory.csv", keep_default_na=False)
+    drills = traj[traj["event"] == "drill"].drop_duplicates("hole_id").set_index("hole_id")
+    q = torch.tensor(drills.loc[log.holes["hole_id"], [f"q{i}" for i in range(1, 9)]].to_numpy(float))
+    p, z = BoomWithErrors(jumbo8, twists).tool_pose(q)
+    base = np.array([[0.0, 0.8, 0.0] if b == "L" else [0.0, -0.8, 0.0] for b in log.holes["boom"]])
+    np.testing.assert_allclose(log.holes[["collar_x", "collar_y", "collar_z"]].to_numpy(), p.numpy() + base,
+                               atol=1e-5)
+    plan = pd.read_csv(tmp / "small.csv", dtype={"hole_id": str}).set_index("hole_id").loc[log.holes["hole_id"]]
+    length = np.linalg.norm(plan[["toe_x", "toe_y", "toe_z"]].to_numpy() - plan[["collar_x", "collar_y",
+                                                                                  "collar_z"]].to_numpy(), axis=1)
+    np.testing.assert_allclose(log.holes[["toe_x", "toe_y", "toe_z"]].to_numpy(),
+                               p.numpy() + base + length[:, None] * z.numpy(), atol=1e-5)
+    off = deviations(plan.reset_index(), log.holes)[1]
+    assert off["collar_dev_m_mean"] > 0.01  # the field level: centimetres, not the plan
+    nominal = run(planned, "execute.draw=nominal", "execute.monte_carlo=false", folder=tmp_path / "nominal")
+    assert nominal["as_drilled"]["boom"] == "the planning model"
+    same = deviations(plan.reset_index(), read_quality_log(tmp_path / "nominal" / "small_executed_quality.xml").holes)
+    assert same[1]["collar_dev_m_max"] < 1e-5 and same[1]["within"] == 6

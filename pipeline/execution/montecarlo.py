@@ -47,6 +47,10 @@ class ExecutionSettings:
     quick_factor: float = field(default=0.7, metadata=rule(gt=0, le=MAX_FACTOR))
     stall_p: float = field(default=0.0, metadata=rule(ge=0, le=1))
     factors: dict[str, float] = field(default_factory=dict)
+    # the boom the rig really has, for the as-drilled log (pipeline/execution/as_drilled.py): a boom config
+    # file, or a calibrated model file; null: the model the round was planned with
+    true_boom: str | None = None
+    true_boom_model: str | None = None
 
 
 def parse_execution(node: Mapping, source: str = "execution") -> ExecutionSettings:

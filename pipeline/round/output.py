@@ -40,7 +40,9 @@ EXECUTED = {"round": "_executed_round.csv", "trajectory": "_executed_trajectory.
             "actions": "_executed_actions.csv", "interlocks": "_executed_interlocks.csv",
             "draws": "_draws.csv", "makespans": "_executed_makespans.png", "replay": "_executed_replay.html",
             # an IREDES plan's holes as the executor read them, as CSV: the independent checker's plan
-            "plan": "_executed_plan.csv"}
+            "plan": "_executed_plan.csv",
+            # the as-drilled log: IREDES DRPQual, each hole where the rig's real boom drilled it (plan frame)
+            "quality": "_executed_quality.xml"}
 
 
 @dataclass(frozen=True)
