@@ -22,7 +22,7 @@ LAYERS = ["core", "optim", "geometry", "data", "assembly", "learning", "solvers"
           "deploy", "plans", "motion", "round", "execution", "benchmarks", "tracking", "stages"]
 PRODUCT_PACKAGES = {"plans", "motion", "round", "execution", "benchmarks"}
 STUDY_STAGES = {"generate", "train", "evaluate", "benchmark", "paper_baselines", "report", "derive_box", "export",
-                "export_benchmark", "calibrate", "params", "dashboard", "distill"}
+                "export_benchmark", "calibrate", "params", "dashboard", "distill", "field_boom"}
 PRODUCT_STAGES = {"solve", "demo_face", "move_benchmark", "schedule", "execute", "quality"}
 
 
