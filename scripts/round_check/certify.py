@@ -208,7 +208,7 @@ def certify(acts: Actions, locks: Interlocks, zones: Zones, g: Graph, floors: di
         at = fl.least_at[np.ix_(ea, eb)]
         if cells is not None:  # the least distance over the pair's unordered segments, to tol
             ii, jj = np.nonzero(check)
-            lb, ub, at_ = least_distance(cells[a], cells[b], ea[ii], eb[jj], tol)
+            lb, ub, at_, _ = least_distance(cells[a], cells[b], ea[ii], eb[jj], tol)
             if lb < least:
                 least = lb
             if ub < least_s:
@@ -223,10 +223,13 @@ def certify(acts: Actions, locks: Interlocks, zones: Zones, g: Graph, floors: di
                 least_s, least_s_pair = float(s_[i, j]), (A.name(acts, i), Bs.name(acts, j))
         for i, j in np.argwhere(check & (floor < d_boom)):
             who = f"booms {acts.booms[a]} and {acts.booms[b]}: {A.name(acts, i)} and {Bs.name(acts, j)}"
+            lo, dist, where = float(floor[i, j]), float(near[i, j]), (float(at[i, j, 0]), float(at[i, j, 1]))
+            if cells is not None and len(listed) + len(listed_unclear) < MAX_LISTED:  # the pair's own least, to tol
+                lo, dist, _, where = least_distance(cells[a], cells[b], ea[i:i + 1], eb[j:j + 1], tol)
+            near[i, j], at[i, j] = dist, where
             entry = {"booms": [acts.booms[a], acts.booms[b]], "segments": [A.name(acts, i), Bs.name(acts, j)],
-                     "episodes": [int(ea[i]), int(eb[j])], "distance_m": float(near[i, j]),
-                     "clearance_m": float(near[i, j] - d_boom), "certified_floor_m": float(floor[i, j]),
-                     "at_planned_s": [float(at[i, j, 0]), float(at[i, j, 1])]}
+                     "episodes": [int(ea[i]), int(eb[j])], "distance_m": dist, "clearance_m": dist - d_boom,
+                     "certified_floor_m": lo, "at_planned_s": list(where)}
             if below[i, j]:
                 n_viol += 1
                 if len(listed) < MAX_LISTED:

@@ -168,20 +168,22 @@ def floors(A: Cells, B: Cells, d_boom: float, max_levels: int = 60) -> Floors:
 
 
 def least(A: Cells, B: Cells, ea: np.ndarray, eb: np.ndarray, tol: float = 1e-3, max_levels: int = 60
-          ) -> tuple[float, float, tuple[int, int] | None]:
+          ) -> tuple[float, float, tuple[int, int] | None, tuple[float, float] | None]:
     """The least distance over the episode pairs ``(ea[i], eb[i])``, to ``tol``: a certified lower bound, the
-    least sampled distance (an upper bound: two configurations that far apart) and the pair it is of. The
+    least sampled distance (an upper bound: two configurations that far apart), the pair it is of and the
+    two instants of the planned clock whose configurations give it. The
     same branch and bound as :func:`floors`, aimed at the minimum: a cell pair is split while its floor is
     more than ``tol`` below the least sample found so far (the cells' children are shared with it)."""
     if not len(ea):
-        return np.inf, np.inf, None
+        return np.inf, np.inf, None, None
     ia, ib = np.asarray(ea, np.int64), np.asarray(eb, np.int64)  # episode i is cell i (the first cells)
-    ub, lb, at = np.inf, np.inf, None
+    ub, lb, at, when = np.inf, np.inf, None, None
     for level in range(max_levels + 1):
         D, L = _measure(A, B, ia, ib)
         k = int(D.argmin())
         if D[k] < ub:
             ub, at = float(D[k]), (int(A.episode[ia[k]]), int(B.episode[ib[k]]))
+            when = (float(A.tm[ia[k]]), float(B.tm[ib[k]]))
         ra, rb = A.r[ia].max(1), B.r[ib].max(1)
         go = (L < ub - tol) & (np.maximum(ra, rb) > MIN_R)
         if level == max_levels or go.sum() * 2 > CAP:
@@ -195,7 +197,7 @@ def least(A: Cells, B: Cells, ea: np.ndarray, eb: np.ndarray, tol: float = 1e-3,
         ca, cb = np.repeat(ia[:, None], 2, 1), np.repeat(ib[:, None], 2, 1)
         ca[on_a], cb[~on_a] = A.split(ia[on_a]), B.split(ib[~on_a])
         ia, ib = ca.ravel(), cb.ravel()
-    return lb, ub, at
+    return lb, ub, at, when
 
 
 def _keep_least(least: np.ndarray, at: np.ndarray, ea: np.ndarray, eb: np.ndarray, D: np.ndarray, ta: np.ndarray,
