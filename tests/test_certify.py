@@ -371,7 +371,10 @@ def planned(tmp_path_factory):
 def _check(traj, overrides, *extra):
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = cr.main([str(traj), *overrides, *extra])
+        try:
+            rc = cr.main([str(traj), *overrides, *extra])
+        except SystemExit as e:
+            rc = e.code
     return rc, (json.loads(out.getvalue()) if out.getvalue() else None), err.getvalue()
 
 
@@ -536,3 +539,26 @@ def test_a_planned_round_passes_and_each_deleted_interlock_is_caught(planned, tm
         if nominal_kept:  # the plan still runs as planned: only its robustness is at stake, and it is broken
             assert k in shown, (k, [e["segments"] for e in cert["violating"]])
     assert shown, "no deletion shown real"
+
+
+@pytest.mark.slow
+def test_a_zones_file_on_the_command_line(planned, tmp_path):
+    """``--zones``: a header alone is no zone; a zone around both booms' first actions takes those pairs out;
+    a bad file or a missing one exits 2, naming it."""
+    tmp, overrides = planned
+    traj = tmp / "small_trajectory.csv"
+    empty = _write(tmp_path / "empty.csv", "zone,boom,first_action,last_action\n")
+    rc, report, err = _check(traj, overrides, "--zones", str(empty))
+    assert rc == 0, err
+    cert = report["execution"]["certified"]
+    assert cert["zones"]["sections"] == 0 and cert["zone_excluded_pairs"] == 0
+    both = _write(tmp_path / "both.csv", "zone,boom,first_action,last_action\nstart,L,0,1\nstart,R,0,1\n")
+    rc, zoned, err = _check(traj, overrides, "--zones", str(both))
+    z = zoned["execution"]["certified"]
+    assert z["zones"]["sections"] == 2 and z["zone_excluded_pairs"] >= 1, z
+    assert z["pairs_checked"] + z["zone_excluded_pairs"] >= cert["pairs_checked"]
+    bad = _write(tmp_path / "bad.csv", "zone,boom,first_action,last_action\nstart,X,0,1\n")
+    rc, _, err = _check(traj, overrides, "--zones", str(bad))
+    assert rc == 2 and "bad.csv: row 2: boom 'X' is not a boom of the rig" in err
+    rc, _, err = _check(traj, overrides, "--zones", str(tmp_path / "nosuch.csv"))
+    assert rc == 2 and "nosuch.csv: no such zones file" in err

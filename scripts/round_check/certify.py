@@ -259,6 +259,7 @@ def certify(acts: Actions, locks: Interlocks, zones: Zones, g: Graph, floors: di
                                           "final_stand": 1} for s in segs},
         "unordered_pairs": n_unordered, "zone_excluded_pairs": n_zone, "pairs_checked": n_checked,
         "least_certified_distance_m": None if not np.isfinite(least) else least,
+        "least_certified_clearance_m": None if not np.isfinite(least) else least - d_boom,
         "least_sampled_distance_m": None if not np.isfinite(least_s) else least_s,
         "least_pair": list(least_s_pair) if least_s_pair else None,
         "least_tolerance_m": tol if cells is not None else None,
