@@ -9,7 +9,8 @@ to each of its surface kinds), :mod:`.navigation` (the plan frame's transform: a
 fit of measured points), :mod:`.settings` (the rig, tunnel, navigation, safety and motion from the
 composed config), :mod:`.files` (reading and validating the trajectory, round table, round JSON and
 plan), :mod:`.sweep` (certified clearances over time), :mod:`.rules` (row checks: limits, speeds, park,
-holes, makespan), :mod:`.actions`, :mod:`.execute`, :mod:`.episodes`, :mod:`.executed` (the executed
-round under drawn durations, and a draws file), :mod:`.realised` (a realised set at its own times),
-:mod:`.cli` (the command).
+holes, makespan), :mod:`.actions` (the actions, interlocks and zones files), :mod:`.execute`, :mod:`.episodes`,
+:mod:`.certify` (a planned round's robustness certified exactly, for any drilling durations),
+:mod:`.executed` (the executed round under drawn durations, and a draws file), :mod:`.realised` (a
+realised set at its own times), :mod:`.cli` (the command).
 """

@@ -2,7 +2,10 @@
 
 Actions file: ``boom, action, kind, hole_id, t_start, t_end``; interlocks file: ``boom, action,
 after_boom, after_action`` (action ``action`` of ``boom`` starts only once ``after_action`` of
-``after_boom`` has ended). Anything that cannot be judged is an :class:`InputError` (exit 2) naming
+``after_boom`` has ended); zones file (optional: absent or a header alone is no zone): ``zone, boom,
+first_action, last_action``, one row per *section* (the boom is inside the zone from the start of
+``first_action`` to the end of ``last_action``; it may start ``first_action`` only when no other boom
+is inside that zone). Anything that cannot be judged is an :class:`InputError` (exit 2) naming
 the file and its row (file line; the header is line 1).
 
 Agreement with the trajectory (per boom, times within :data:`TIME_TOL`): every action starts and ends
@@ -26,6 +29,7 @@ from .files import BoomRows, _numbers, _require, _table
 
 ACTION_COLUMNS = ["boom", "action", "kind", "hole_id", "t_start", "t_end"]
 INTERLOCK_COLUMNS = ["boom", "action", "after_boom", "after_action"]
+ZONE_COLUMNS = ["zone", "boom", "first_action", "last_action"]
 KINDS = ("move", "drill")
 MOVE_EVENTS = ("move", "move_unclear")
 TIME_TOL = 1e-6  # s: actions and rows are written from the same floats
@@ -156,6 +160,83 @@ def read_interlocks(path: Path, acts: Actions) -> Interlocks:
                              f"(its actions: {has})")
         ends.append(acts.first[bi] + a)
     return Interlocks(ends[1], ends[0], np.arange(len(df)) + 2, Path(path))
+
+
+@dataclass
+class Zones:
+    """Sections of zones, one per row: ``zone`` name, the boom (rig index) and its first and last action
+    (global numbers). Empty when there is no zones file."""
+
+    zone: np.ndarray  # (m,) str
+    boom: np.ndarray
+    first: np.ndarray
+    last: np.ndarray
+    line: np.ndarray
+    path: Path | None
+
+    def __len__(self) -> int:
+        return len(self.zone)
+
+    @classmethod
+    def none(cls) -> Zones:
+        e = np.zeros(0, np.int64)
+        return cls(np.zeros(0, str), e, e, e, e, None)
+
+    def entries(self) -> np.ndarray:
+        """The actions that enter a zone (a section's first): a boom may have to stand before them."""
+        return np.unique(self.first)
+
+    def section(self, k: int) -> str:
+        return f"zone {self.zone[k]!r} section (row {self.line[k]})"
+
+
+def read_zones(path: Path | None, acts: Actions) -> Zones:
+    """The zones file (module docstring); ``None`` or an absent file: no zone. Refused (exit 2, naming
+    the file and the row): a missing column or cell, an empty zone name, a boom not of the rig, an action
+    the boom does not have, ``last_action`` before ``first_action``, and two sections of one boom in one
+    zone that share an action (one of them would enter a zone the boom is already inside)."""
+    if path is None or not Path(path).exists():
+        return Zones.none()
+    df = _table(Path(path), "zones file")
+    _require(df, ZONE_COLUMNS, path)
+    if df.empty:
+        return Zones(np.zeros(0, str), *(np.zeros(0, np.int64),) * 4, Path(path))
+    zone, boom = df["zone"].str.strip(), df["boom"].str.strip()
+    empty = (zone == "").to_numpy()
+    if empty.any():
+        i = int(np.flatnonzero(empty)[0])
+        raise InputError(f"{path}: row {i + 2}: no zone named (the `zone` cell is empty)")
+    bi = boom.map({b: i for i, b in enumerate(acts.booms)})
+    unknown = bi.isna().to_numpy()
+    if unknown.any():
+        i = int(np.flatnonzero(unknown)[0])
+        raise InputError(f"{path}: row {i + 2}: boom {boom.iloc[i]!r} is not a boom of the rig {acts.booms}")
+    bi = bi.to_numpy(np.int64)
+    num = _numbers(df, ["first_action", "last_action"], path, boom)
+    first, last = _whole(num[:, 0], df, "first_action", path), _whole(num[:, 1], df, "last_action", path)
+    n_of = np.diff(acts.first)
+    for col, a in (("first_action", first), ("last_action", last)):
+        missing = a >= n_of[bi]
+        if missing.any():
+            i = int(np.flatnonzero(missing)[0])
+            has = f"0..{n_of[bi[i]] - 1}" if n_of[bi[i]] else "none"
+            raise InputError(f"{path}: row {i + 2}: boom {boom.iloc[i]!r} has no action {a[i]} ({col}) in "
+                             f"{acts.path} (its actions: {has})")
+    back = last < first
+    if back.any():
+        i = int(np.flatnonzero(back)[0])
+        raise InputError(f"{path}: row {i + 2}: last_action {last[i]} is before first_action {first[i]}")
+    lines = np.arange(len(df)) + 2
+    order = np.lexsort((first, bi, zone.to_numpy(str)))
+    z, b, f, la = zone.to_numpy(str)[order], bi[order], first[order], last[order]
+    clash = (z[1:] == z[:-1]) & (b[1:] == b[:-1]) & (f[1:] <= la[:-1])
+    if clash.any():
+        k = int(np.flatnonzero(clash)[0])
+        raise InputError(f"{path}: rows {lines[order[k]]} and {lines[order[k + 1]]}: two sections of boom "
+                         f"{acts.booms[b[k]]!r} in zone {z[k]!r} share actions ({f[k]}..{la[k]} and "
+                         f"{f[k + 1]}..{la[k + 1]}); a boom's sections of one zone are apart")
+    g = acts.first[bi]
+    return Zones(zone.to_numpy(str), bi, g + first, g + last, lines, Path(path))
 
 
 def _row_at(t: np.ndarray, when: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

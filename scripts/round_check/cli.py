@@ -4,7 +4,11 @@ cannot be certified), 2 an input that cannot be judged (a file, an argument or a
 
 The JSON names the tunnel checked against (``tunnel``: the horseshoe's width and wall height, or a
 profile's file and vertex count) and, where a plan is checked, the navigation that took it into the rig
-frame (``navigation``: the pose given, or the points fit's rms, worst point and pose)."""
+frame (``navigation``: the pose given, or the points fit's rms, worst point and pose).
+
+A planned set with an actions file is also *certified* (:mod:`round_check.certify`): d_boom between every
+two segments of two booms that some drilling durations can make overlap, exactly, whatever the draws;
+the JSON's ``execution.certified`` says what was checked and what failed."""
 
 from __future__ import annotations
 
@@ -13,17 +17,20 @@ import dataclasses
 import json
 import math
 import sys
+import time
 import traceback
 from pathlib import Path
 
 import numpy as np
 
 from . import rules
-from .actions import agree, read_actions, read_interlocks
+from .actions import agree, read_actions, read_interlocks, read_zones
+from .certify import certify
 from .distance import SURFACES
 from .errors import InputError
 from .execute import draws, graph, read_draws
 from .executed import check as check_executed
+from .executed import episode_floors
 from .files import read_plan, read_round_table, read_summary, read_trajectory
 from .realised import follow
 from .settings import CONF_DIR, differences, settings
@@ -34,15 +41,16 @@ EXIT_INTERNAL = 3  # the checker itself failed (a bug, or memory): its traceback
 
 USAGE = """python scripts/check_round.py <stem>_trajectory.csv [hydra overrides, as the stage's: rig=twin ...]
         [--round F] [--summary F] [--plan F] [--spacing-m 0.005] [--collar-tol-mm 0.1] [--angle-tol-deg A]
-        [--levels 4] [--trajectory-only] [--actions F] [--interlocks F] [--execute N] [--seed S] [--draws F]
-        [--realised] [--other-tunnel]"""
+        [--levels 4] [--trajectory-only] [--actions F] [--interlocks F] [--zones F] [--execute N] [--seed S]
+        [--draws F] [--realised] [--other-tunnel]"""
 
 
 # a set's file names after its stem: the planned set, and the realised one the executor writes
 NAMES = {False: {"trajectory": "_trajectory.csv", "round": "_round.csv", "summary": "_round.json",
-                 "actions": "_actions.csv", "interlocks": "_interlocks.csv"},
+                 "actions": "_actions.csv", "interlocks": "_interlocks.csv", "zones": "_zones.csv"},
          True: {"trajectory": "_executed_trajectory.csv", "round": "_executed_round.csv", "summary": "_executed.json",
-                "actions": "_executed_actions.csv", "interlocks": "_executed_interlocks.csv"}}
+                "actions": "_executed_actions.csv", "interlocks": "_executed_interlocks.csv",
+                "zones": "_executed_zones.csv"}}
 
 
 def _sibling(trajectory: Path, realised: bool, which: str) -> Path | None:
@@ -186,7 +194,7 @@ def _messages(sw: Sweep, res, st, ctx) -> tuple[list[str], list[str]]:
 def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spacing_m: float = 0.005,
           collar_tol_mm: float = 0.1, angle_tol_deg: float | None = None, levels: int = 4,
           trajectory_only: bool = False, actions=None, interlocks=None, execute: int | None = None,
-          seed: int = 0, realised: bool = False, draws_file=None, other_tunnel: bool = False) -> dict:
+          seed: int = 0, realised: bool = False, draws_file=None, zones=None, other_tunnel: bool = False) -> dict:
     """Check one round's files; returns the report (raises :class:`InputError` on input it cannot judge).
 
     ``trajectory_only``: the motion alone (clearances, limits, speeds, park, the planner's flags), for a
@@ -200,8 +208,9 @@ def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spa
         raise InputError(f"{'--execute' if execute is not None else '--draws'} with --realised: drawn durations are "
                          "for a planned round's actions; a realised set is checked at the times it was executed "
                          "(drop one of the two)")
-    if trajectory_only and (execute is not None or actions or interlocks or draws_file):
-        raise InputError("--trajectory-only checks the motion alone: no --actions, --interlocks, --execute or --draws")
+    if trajectory_only and (execute is not None or actions or interlocks or draws_file or zones):
+        raise InputError("--trajectory-only checks the motion alone: no --actions, --interlocks, --zones, --execute "
+                         "or --draws")
     trajectory = Path(trajectory)
     if not trajectory.is_file():
         raise InputError(f"{trajectory}: no such trajectory file")
@@ -232,7 +241,7 @@ def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spa
     stopped = frozenset(table["hole_id"][table["status"] == "interrupted"])
     # input errors before any sweep; drawn durations (--execute, even 0, or --draws) need an actions file
     wants = execute is not None or bool(draws_file)
-    execution = _read_execution(st, trajectory, rows, actions, interlocks, 0 if wants else None, realised)
+    execution = _read_execution(st, trajectory, rows, actions, interlocks, 0 if wants else None, realised, zones)
     file_draws = None
     if draws_file:
         acts = execution[0]
@@ -293,24 +302,28 @@ def _arguments(spacing_m, collar_tol_mm, angle_tol_deg, levels, execute, seed) -
         raise InputError(f"--seed = {seed!r}: must be a whole number in 0..{MAX_SEED} (numpy's seed)")
 
 
-def _read_execution(st, trajectory: Path, rows, actions, interlocks, execute, realised: bool = False):
-    """(actions, interlocks) read (and, for a planned round, held against the trajectory), or a note why
-    none is checked. A realised round's disagreements are its violations (:func:`follow`), not input errors."""
+def _read_execution(st, trajectory: Path, rows, actions, interlocks, execute, realised: bool = False, zones=None):
+    """(actions, interlocks, zones) read (and, for a planned round, held against the trajectory), or a note why
+    none is checked. A realised round's disagreements are its violations (:func:`follow`), not input errors.
+    The zones file: ``--zones``, else ``<stem>_zones.csv`` when it is there; none is no zone."""
     a_path = Path(actions) if actions else _sibling(trajectory, realised, "actions")
     if not actions and (a_path is None or not a_path.exists()):
-        if execute is not None or interlocks:
+        if execute is not None or interlocks or zones:
             raise InputError(f"{a_path or trajectory}: no actions file to execute: give --actions")
         return {"checked": False, "why": f"no actions file ({a_path or 'give --actions'})"}
     i_path = Path(interlocks) if interlocks else _sibling(trajectory, realised, "interlocks")
     if i_path is None:
         raise InputError(f"{trajectory}: not named <stem>{NAMES[realised]['trajectory']}: give --interlocks")
+    if zones and not Path(zones).is_file():
+        raise InputError(f"{zones}: no such zones file")
+    z_path = Path(zones) if zones else _sibling(trajectory, realised, "zones")
     acts = read_actions(a_path, [b.name for b in st.booms])
     if not realised:
         agree(acts, rows, trajectory)
-    return acts, read_interlocks(i_path, acts)
+    return acts, read_interlocks(i_path, acts), read_zones(z_path, acts)
 
 
-def _execution(st, rows, plan, acts, locks, execute, seed, spacing_m, levels, report, file_draws=None) -> dict:
+def _execution(st, rows, plan, acts, locks, zones, execute, seed, spacing_m, levels, report, file_draws=None) -> dict:
     L = np.linalg.norm(plan.toe - plan.collar, axis=1)
     spec = dict(zip(plan.ids, st.drill_times(L).sum(1), strict=True))
     spec = {h: float(v) for h, v in spec.items() if np.isfinite(v)}
@@ -318,12 +331,22 @@ def _execution(st, rows, plan, acts, locks, execute, seed, spacing_m, levels, re
     dr = draws(list(acts.hole[drill]), acts.boom[drill], acts.booms, execute or 0, seed, execute is not None)
     if file_draws is not None:
         dr = dr + file_draws[0]
-    out = check_executed(st, rows, acts, locks, graph(acts, locks), dr, spec, spacing_m, levels)
+    g = graph(acts, locks)
+    t0 = time.perf_counter()
+    floors = episode_floors(st, rows, acts)
+    t_floors = time.perf_counter() - t0
+    cert = None
+    if g.cycle is None:  # a deadlock is reported by the execution below, and nothing is certified
+        cert, c_msgs, c_unclear = certify(acts, locks, zones, g, floors[2], st.d_boom, floors[1])
+        cert["time_s"] = {"episode_floors": t_floors, "ordering_and_pairs": cert["time_s"]}
+        report["violations"] += c_msgs
+        report["not_certified"] += c_unclear
+    out = check_executed(st, rows, acts, locks, g, dr, spec, spacing_m, levels, zones, floors)
     if file_draws is not None:
         out["draws_file"] = file_draws[1]
     report["violations"] += out.pop("messages")
     report["not_certified"] += out.pop("unclear")
-    return {"checked": True, "seed": seed, **out}
+    return {"checked": True, "seed": seed, "certified": cert, **out}
 
 
 def _motion(st, trajectory, spacing_m, levels, given, head, rows=None) -> dict:
@@ -383,6 +406,8 @@ def main(argv=None) -> int:
                     help="the motion alone (no round table, JSON or plan): no hole and no makespan check")
     ap.add_argument("--actions", help="the actions file (default <stem>_actions.csv, checked when there)")
     ap.add_argument("--interlocks", help="the interlocks file (default <stem>_interlocks.csv)")
+    ap.add_argument("--zones", help="the zones file (zone, boom, first_action, last_action; default "
+                                    "<stem>_zones.csv when there, else no zone)")
     ap.add_argument("--execute", type=int, default=None, metavar="N",
                     help="N random draws (0.7-1.5x drilling), each hole alone at 3x, each boom slow")
     ap.add_argument("--seed", type=int, default=0, help="seed of the random draws")
@@ -402,7 +427,8 @@ def main(argv=None) -> int:
     try:
         out = check(args.trajectory, args.overrides, args.round_csv, args.summary, args.plan, args.spacing_m,
                     args.collar_tol_mm, args.angle_tol_deg, args.levels, args.trajectory_only, args.actions,
-                    args.interlocks, args.execute, args.seed, args.realised, args.draws_file, args.other_tunnel)
+                    args.interlocks, args.execute, args.seed, args.realised, args.draws_file, args.zones,
+                    args.other_tunnel)
     except InputError as e:
         print(f"check_round: {e}", file=sys.stderr)
         return EXIT_INPUT

@@ -134,12 +134,15 @@ class Floors:
     floor: np.ndarray  # (episodes of a, episodes of b) certified least distance (m)
     below: np.ndarray  # (.., ..) a sampled distance under d_boom: the episodes can come that close
     pairs_measured: int
+    least: np.ndarray | None = None  # (.., ..) least sampled distance (m): the episodes come at least that close
+    least_at: np.ndarray | None = None  # (.., .., 2) planned-clock instants of a's and b's sample giving it
 
 
 def floors(A: Cells, B: Cells, d_boom: float, max_levels: int = 60) -> Floors:
     na, nb = len(A.episode), len(B.episode)
     floor = np.full((na, nb), np.inf)
     below = np.zeros((na, nb), bool)
+    least, least_at = np.full((na, nb), np.inf), np.full((na, nb, 2), np.nan)
     ia, ib = np.repeat(np.arange(na), nb), np.tile(np.arange(nb), na)
     measured = 0
     for level in range(max_levels + 1):
@@ -147,6 +150,7 @@ def floors(A: Cells, B: Cells, d_boom: float, max_levels: int = 60) -> Floors:
         measured += len(ia)
         ea, eb = A.episode[ia], B.episode[ib]
         np.logical_or.at(below, (ea, eb), D < d_boom)
+        _keep_least(least, least_at, ea, eb, D, A.tm[ia], B.tm[ib])
         ra, rb = A.r[ia].max(1), B.r[ib].max(1)
         go = (L < d_boom) & ~below[ea, eb] & (np.maximum(ra, rb) > MIN_R)
         last = level == max_levels or go.sum() * 2 > CAP
@@ -160,4 +164,51 @@ def floors(A: Cells, B: Cells, d_boom: float, max_levels: int = 60) -> Floors:
         ca, cb = np.repeat(ia[:, None], 2, 1), np.repeat(ib[:, None], 2, 1)
         ca[on_a], cb[~on_a] = A.split(ia[on_a]), B.split(ib[~on_a])
         ia, ib = ca.ravel(), cb.ravel()
-    return Floors(floor, below, measured)
+    return Floors(floor, below, measured, least, least_at)
+
+
+def least(A: Cells, B: Cells, ea: np.ndarray, eb: np.ndarray, tol: float = 1e-3, max_levels: int = 60
+          ) -> tuple[float, float, tuple[int, int] | None, tuple[float, float] | None]:
+    """The least distance over the episode pairs ``(ea[i], eb[i])``, to ``tol``: a certified lower bound, the
+    least sampled distance (an upper bound: two configurations that far apart), the pair it is of and the
+    two instants of the planned clock whose configurations give it. The
+    same branch and bound as :func:`floors`, aimed at the minimum: a cell pair is split while its floor is
+    more than ``tol`` below the least sample found so far (the cells' children are shared with it)."""
+    if not len(ea):
+        return np.inf, np.inf, None, None
+    ia, ib = np.asarray(ea, np.int64), np.asarray(eb, np.int64)  # episode i is cell i (the first cells)
+    ub, lb, at, when = np.inf, np.inf, None, None
+    for level in range(max_levels + 1):
+        D, L = _measure(A, B, ia, ib)
+        k = int(D.argmin())
+        if D[k] < ub:
+            ub, at = float(D[k]), (int(A.episode[ia[k]]), int(B.episode[ib[k]]))
+            when = (float(A.tm[ia[k]]), float(B.tm[ib[k]]))
+        ra, rb = A.r[ia].max(1), B.r[ib].max(1)
+        go = (L < ub - tol) & (np.maximum(ra, rb) > MIN_R)
+        if level == max_levels or go.sum() * 2 > CAP:
+            go[:] = False
+        if (~go).any():
+            lb = min(lb, float(L[~go].min()))
+        if not go.any():
+            break
+        ia, ib, ra, rb = ia[go], ib[go], ra[go], rb[go]
+        on_a = ra >= rb
+        ca, cb = np.repeat(ia[:, None], 2, 1), np.repeat(ib[:, None], 2, 1)
+        ca[on_a], cb[~on_a] = A.split(ia[on_a]), B.split(ib[~on_a])
+        ia, ib = ca.ravel(), cb.ravel()
+    return lb, ub, at, when
+
+
+def _keep_least(least: np.ndarray, at: np.ndarray, ea: np.ndarray, eb: np.ndarray, D: np.ndarray, ta: np.ndarray,
+                tb: np.ndarray) -> None:
+    """Per episode pair, the least sampled distance so far and the two instants (planned clock) it was at."""
+    better = np.flatnonzero(D < least[ea, eb])
+    if not len(better):
+        return
+    key = ea[better] * least.shape[1] + eb[better]
+    order = np.lexsort((D[better], key))  # by pair, then distance: the first of each pair is its least
+    first = order[np.r_[True, key[order][1:] != key[order][:-1]]]
+    i = better[first]
+    least[ea[i], eb[i]] = D[i]
+    at[ea[i], eb[i], 0], at[ea[i], eb[i], 1] = ta[i], tb[i]

@@ -3,6 +3,13 @@ action and every action it is interlocked after have ended; a move keeps its pla
 takes its drawn one. Vectorised over draws: actions are taken level by level of the dependency graph
 (sequence and interlock edges), so the loop runs over the graph's depth, never over draws.
 
+With zones (:class:`round_check.actions.Zones`) the rule has one more condition: an action that enters
+a zone (a section's first action) starts only when no other boom is inside that zone; two booms ready to
+enter one zone at the same instant are let in in rig order (the lower boom first), the other waits. That
+makes the execution depend on which boom comes first, so it is run draw by draw, as events
+(:func:`execute_zones`; the plain rule keeps the vectorised form); a draw in which every boom left waits
+for another is a deadlock of that draw.
+
 The draws of issue 27's targets: the spec durations; ``n`` draws with every hole's drilling uniform in
 0.7-1.5x its spec time; every hole alone at 3x (the others at 1x); each boom in turn at 1.5x while the
 others run at 0.7x.
@@ -16,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .actions import Actions, Interlocks
+from .actions import Actions, Interlocks, Zones
 from .errors import InputError
 from .files import _require, _table
 
@@ -77,6 +84,55 @@ def execute(g: Graph, duration: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         start[:, level] = end[:, g.preds[level]].max(-1)
         end[:, level] = start[:, level] + duration[:, level]
     return start, end[:, :n]
+
+
+def execute_zones(acts: Actions, g: Graph, zones: Zones, duration: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, list[list[int] | None]]:
+    """Start and end ``(draws, n)`` under the rule with zones (module docstring), and per draw None or
+    the actions the booms stand before when no boom can go on (a deadlock; their starts and ends NaN)."""
+    d, n = duration.shape
+    B = len(acts.booms)
+    preds = [[int(p) for p in row if p < n] for row in g.preds]
+    enters: dict[int, list[int]] = {}
+    leaves: dict[int, list[int]] = {}
+    for s, (f, la) in enumerate(zip(zones.first, zones.last, strict=True)):
+        enters.setdefault(int(f), []).append(s)
+        leaves.setdefault(int(la), []).append(s)
+    start, end = np.full((d, n), np.nan), np.full((d, n), np.nan)
+    stuck: list[list[int] | None] = []
+    for i in range(d):
+        nxt = acts.first[:-1].copy()
+        running = np.full(B, -1)
+        inside: dict[str, set[int]] = {}  # zone -> booms inside
+        done = np.zeros(n, bool)
+        t = 0.0
+        while True:
+            moved = True
+            while moved:  # start whatever may start at t, booms in rig order
+                moved = False
+                for b in range(B):
+                    k = int(nxt[b])
+                    if running[b] >= 0 or k >= acts.first[b + 1] or not all(done[p] for p in preds[k]):
+                        continue
+                    zs = [zones.zone[s] for s in enters.get(k, ())]
+                    if any(inside.get(z, set()) - {b} for z in zs):
+                        continue
+                    for z in zs:
+                        inside.setdefault(z, set()).add(b)
+                    start[i, k], end[i, k] = t, t + duration[i, k]
+                    running[b], moved = k, True
+            if (running < 0).all():
+                left = [int(nxt[b]) for b in range(B) if nxt[b] < acts.first[b + 1]]
+                stuck.append(left or None)
+                break
+            t = float(min(end[i, k] for k in running if k >= 0))
+            for b in range(B):
+                k = int(running[b])
+                if k >= 0 and end[i, k] <= t:
+                    done[k], running[b], nxt[b] = True, -1, nxt[b] + 1
+                    for s in leaves.get(k, ()):
+                        inside[zones.zone[s]].discard(b)
+    return start, end, stuck
 
 
 @dataclass

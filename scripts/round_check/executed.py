@@ -21,8 +21,8 @@ from itertools import combinations
 import numpy as np
 
 from . import episodes as ep
-from .actions import TIME_TOL, Actions, Interlocks
-from .execute import Draws, Graph, execute
+from .actions import TIME_TOL, Actions, Interlocks, Zones
+from .execute import Draws, Graph, execute, execute_zones
 from .files import BoomRows
 from .settings import Settings
 from .sweep import Sweep
@@ -68,8 +68,24 @@ def _drill(acts: Actions, b: int, episode: int) -> bool:
     return episode % 2 == 1 and acts.kind[acts.first[b] + episode // 2] == "drill"
 
 
+def episode_floors(st: Settings, rows: dict[str, BoomRows], acts: Actions):
+    """Per boom (index in ``acts.booms``) its planned episode windows and time cells, and per pair of booms
+    ``(a, b)``, a < b, the certified floors of every pair of their episodes (:func:`round_check.episodes.floors`):
+    computed once, for the certification (:mod:`round_check.certify`) and the draws alike."""
+    names = [b.name for b in st.booms]
+    planned, cells = {}, {}
+    for b, name in enumerate(acts.booms):
+        planned[b] = ep.episode_windows(acts, b, rows[name])
+        cells[b] = ep.Cells(st.booms[names.index(name)], rows[name], planned[b])
+    floors = {(a, b): ep.floors(cells[a], cells[b], st.d_boom) for a, b in combinations(range(len(acts.booms)), 2)}
+    return planned, cells, floors
+
+
 def check(st: Settings, rows: dict[str, BoomRows], acts: Actions, locks: Interlocks, g: Graph, dr: Draws,
-          spec_s: dict[str, float], spacing_m: float, levels: int) -> dict:
+          spec_s: dict[str, float], spacing_m: float, levels: int, zones: Zones | None = None,
+          floors=None) -> dict:
+    """The draws executed and checked (module docstring); ``zones``: the rule with zones
+    (:func:`round_check.execute.execute_zones`); ``floors``: :func:`episode_floors`' answer, if made already."""
     t_begin = time.perf_counter()
     out = {"actions": str(acts.path), "interlocks": str(locks.path), "draws": len(dr.labels),
            "draws_by_kind": {"nominal": 1, "random": sum(lb.startswith("random") for lb in dr.labels),
@@ -87,8 +103,30 @@ def check(st: Settings, rows: dict[str, BoomRows], acts: Actions, locks: Interlo
         names = " -> ".join(acts.name(k) for k in [*g.cycle, g.cycle[0]])
         out.update({"deadlocks": 1, "deadlock_cycle": names, "violations": 1})
         return {**out, "messages": [f"deadlock: {names} (each waits for the next; {locks.path})"], "unclear": []}
-    start, end = execute(g, durations(acts, spec_s, dr))
-    violations += _nominal(acts, rows, start[0], end[0])
+    out["zones"] = 0 if zones is None else len(zones)
+    if zones is not None and len(zones):
+        start, end, stuck = execute_zones(acts, g, zones, durations(acts, spec_s, dr))
+        dead = [i for i, s in enumerate(stuck) if s is not None]
+        for i in dead[:MAX_MESSAGES]:
+            waiting = ", ".join(acts.name(k) for k in stuck[i])
+            violations.append(f"deadlock in draw {i} ({dr.labels[i]}): no boom can go on; they stand before "
+                              f"{waiting} (interlocks and zones: {locks.path}, {zones.path})")
+        if len(dead) > MAX_MESSAGES:
+            violations.append(f"{len(dead) - MAX_MESSAGES} more draws deadlock")
+        out["deadlocks"] = len(dead)
+        if dead:  # what a deadlocked draw did is not a round: the rest are checked
+            keep = np.array([s is None for s in stuck])
+            dr = Draws([lb for lb, k in zip(dr.labels, keep, strict=True) if k], dr.factor[keep], dr.holes,
+                       [kd for kd, k in zip(dr.kinds, keep, strict=True) if k])
+            start, end = start[keep], end[keep]
+            if not keep.any():
+                out.update({"violations": len(violations)})
+                return {**out, "messages": violations, "unclear": []}
+    else:
+        start, end = execute(g, durations(acts, spec_s, dr))
+        out["deadlocks"] = 0
+    if dr.labels[0].startswith("nominal"):
+        violations += _nominal(acts, rows, start[0], end[0])
     span = np.zeros(len(dr.labels))
     per_boom = {}
     for b in range(len(acts.booms)):
@@ -99,14 +137,14 @@ def check(st: Settings, rows: dict[str, BoomRows], acts: Actions, locks: Interlo
         per_boom[acts.booms[b]] = (start[:, k] - ready).sum(1)
     standing = np.sum(list(per_boom.values()), 0)
     t_exec = time.perf_counter() - t_begin
-    pair_msgs, unclear, stats = _boom_boom(st, rows, acts, dr, start, end, spacing_m, levels)
+    pair_msgs, unclear, stats = _boom_boom(st, rows, acts, dr, start, end, spacing_m, levels, floors)
     violations += pair_msgs
     share = standing / np.where(span > 0, span, 1.0)
     bad_draws = stats.pop("_violating")
     if any(dr.kinds):
         out["draws_file_by_kind"] = _by_kind(dr, span, bad_draws)
     out.update({
-        "deadlocks": 0, **stats,
+        **stats,
         "makespan_s": {"trajectory": max(float(r.t[-1]) for r in rows.values()), "nominal": float(span[0]),
                        "p50": float(np.percentile(span, 50)), "p95": float(np.percentile(span, 95)),
                        "max": float(span.max()), "max_draw": dr.labels[int(span.argmax())]},
@@ -162,24 +200,21 @@ def _name(acts: Actions, b: int, e: int) -> str:
     return f"{acts.booms[b]} {where}"
 
 
-def _boom_boom(st, rows, acts, dr, start, end, spacing_m, levels):
+def _boom_boom(st, rows, acts, dr, start, end, spacing_m, levels, floors=None):
     t0 = time.perf_counter()
     names = [b.name for b in st.booms]
-    planned = {}
+    if floors is None:
+        floors = episode_floors(st, rows, acts)
+    planned, _, fls = floors
+    t_floor = time.perf_counter() - t0
     exec_w = {}
-    cells = {}
-    for b, name in enumerate(acts.booms):
+    for b in range(len(acts.booms)):
         k = np.arange(acts.first[b], acts.first[b + 1])
-        planned[b] = ep.episode_windows(acts, b, rows[name])
         exec_w[b] = ep.executed_windows(start[:, k], end[:, k])
-        cells[b] = ep.Cells(st.booms[names.index(name)], rows[name], planned[b])
     msgs, unclear, close, measured, cands = [], [], 0, 0, 0
     swept, confirmed_draws, least, least_at = {}, set(), np.inf, None
-    t_floor = 0.0
     for a, b in combinations(range(len(acts.booms)), 2):
-        tf = time.perf_counter()
-        fl = ep.floors(cells[a], cells[b], st.d_boom)
-        t_floor += time.perf_counter() - tf
+        fl = fls[(a, b)]
         measured += fl.pairs_measured
         ea, eb = np.nonzero(fl.floor < st.d_boom)
         close += len(ea)

@@ -6,9 +6,11 @@ with ``realised``). With its actions and interlocks files, the execution itself:
 follow its actions in order at the actions file's (realised) times (:func:`round_check.actions.agree`:
 moves start at their t_start, drills at theirs, the boom still between them), each drill action lasts
 the trajectory's drilling of its hole, and every interlock held in those times (the waiting action
-starts no earlier than the one it waits for ends). Nothing is re-executed with spec durations: the
-times are the rock's, not the model's. A disagreement is a violation (exit 1) here, not an input
-error: the realised set is what is judged, and an executor that writes its times wrong has failed.
+starts no earlier than the one it waits for ends); with a zones file, no two booms were inside one zone
+at once (two sections of one zone, of two booms, overlap by more than the time tolerance). Nothing is
+re-executed with spec durations: the times are the rock's, not the model's. A disagreement is a
+violation (exit 1) here, not an input error: the realised set is what is judged, and an executor that
+writes its times wrong has failed.
 """
 
 from __future__ import annotations
@@ -17,14 +19,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .actions import TIME_TOL, Actions, Interlocks, agree
+from .actions import TIME_TOL, Actions, Interlocks, Zones, agree
 from .errors import InputError
 from .files import BoomRows
 
 MAX_MESSAGES = 20
 
 
-def follow(acts: Actions, locks: Interlocks, rows: dict[str, BoomRows], trajectory: Path,
+def follow(acts: Actions, locks: Interlocks, zones: Zones, rows: dict[str, BoomRows], trajectory: Path,
            interrupted: frozenset) -> tuple[list[str], dict]:
     """Violations of the realised execution, and its summary for the JSON."""
     msgs = _drill_durations(acts, rows, trajectory)
@@ -41,6 +43,19 @@ def follow(acts: Actions, locks: Interlocks, rows: dict[str, BoomRows], trajecto
                     f"{acts.line[a]}, {acts.line[b]})")
     if len(broken) > MAX_MESSAGES:
         msgs.append(f"{len(broken) - MAX_MESSAGES} more interlocks broken by the realised times ({locks.path})")
+    shared = 0
+    for i in range(len(zones)):
+        for j in range(i + 1, len(zones)):
+            if zones.zone[i] != zones.zone[j] or zones.boom[i] == zones.boom[j]:
+                continue
+            lo = max(acts.t_start[zones.first[i]], acts.t_start[zones.first[j]])
+            hi = min(acts.t_end[zones.last[i]], acts.t_end[zones.last[j]])
+            if hi - lo > TIME_TOL:
+                shared += 1
+                if shared <= MAX_MESSAGES:
+                    msgs.append(f"zone {zones.zone[i]!r}: booms {acts.booms[zones.boom[i]]} and "
+                                f"{acts.booms[zones.boom[j]]} both inside it over t={lo:.6f}..{hi:.6f} s "
+                                f"({zones.path} rows {zones.line[i]}, {zones.line[j]})")
     return msgs, {
         "checked": True, "mode": "realised: the actions' times held against the trajectory and the interlocks; "
                                  "no re-execution with spec durations",
@@ -48,6 +63,7 @@ def follow(acts: Actions, locks: Interlocks, rows: dict[str, BoomRows], trajecto
         "actions_per_boom": {b: int(n) for b, n in zip(acts.booms, np.diff(acts.first), strict=True)},
         "interlock_rows": int(len(locks.after)), "interlocks_broken": int(len(broken)),
         "least_interlock_slack_s": float(wait.min()) if len(wait) else None,
+        "zone_sections": len(zones), "zones_shared": shared,
         "violations": len(msgs)}
 
 
