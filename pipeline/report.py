@@ -35,7 +35,26 @@ METRIC_HEADER = ["method", "mean hole-seeking error (mm)", "paper", "median", "p
                  "solve time / 1 000 holes (ms)"]
 
 
-def render(metrics: dict, collisions: pd.DataFrame, figures: list[str]) -> str:
+LOOP_HEADER = ["round", "holes within tolerance", "collar deviation mean / p95 / max (mm)", "toe deviation mean (mm)",
+               "direction error mean (deg)"]
+
+
+def loop_lines(loop: dict[str, dict]) -> list[str]:
+    """The as-drilled loop's table: the round drilled by a boom at the field level, planned on the nominal model
+    (before) and on the model calibrated from its measured poses (after), each read back from its log."""
+    rows = []
+    def mm(q: dict, k: str) -> str:
+        return f"{1000 * q[k]:.2f}" if q.get(k) is not None else "—"
+
+    for name, q in loop.items():
+        rows.append([name, f"{q['within']} of {q['holes_planned']}",
+                     f"{mm(q, 'collar_dev_m_mean')} / {mm(q, 'collar_dev_m_p95')} / {mm(q, 'collar_dev_m_max')}",
+                     mm(q, "toe_dev_m_mean"), _fmt(q.get("direction_err_deg_mean"), ".3f")])
+    return ["", "## The as-drilled loop (the demo round, a boom at the field level, calibrated from 60 measured poses)",
+            "", markdown_rows(LOOP_HEADER, rows).rstrip("\n")]
+
+
+def render(metrics: dict, collisions: pd.DataFrame, figures: list[str], loop: dict[str, dict] | None = None) -> str:
     lines = [
         "# IK study report",
         "",
@@ -64,6 +83,8 @@ def render(metrics: dict, collisions: pd.DataFrame, figures: list[str]) -> str:
         cells = [f"{int(row[k])} ({ref[i]})" if ref else f"{int(row[k])}" for i, k in enumerate(SAFETY_KINDS)]
         rows.append([g, row["method"].upper(), *cells])
     lines.append(markdown_rows(["group", "method", *SAFETY_KINDS], rows).rstrip("\n"))
+    if loop:
+        lines += loop_lines(loop)
     lines += ["", "## Figures", ""] + [f"![{f}](figures/{f})" for f in figures] + [""]
     return "\n".join(lines)
 
@@ -84,7 +105,12 @@ def run(cfg: DictConfig) -> str:
     with stage_run(tracking, "report", {"stage": "report"}) as mlrun:
         for name, src in sources.items():
             copy_file(src, out / "figures" / name)
-        text = render(metrics, collisions, figures)
+        # the as-drilled loop's quality summaries (dvc.yaml's loop_before / loop_after), when the study ran it
+        loop = {name: json.loads(path.read_text()) for name, path in
+                (("planned on the nominal model", data / "loop" / "before" / "demo_face_quality.json"),
+                 ("planned on the calibrated model", data / "loop" / "after" / "demo_face_quality.json"))
+                if path.is_file()}
+        text = render(metrics, collisions, figures, loop)
         write_text(text, out / "README.md")
         mlrun.log_text(text, "report/README.md")
         mlrun.log_artifact(out / "figures", "report/figures")

@@ -47,3 +47,8 @@ def test_calibration_brings_the_drilled_round_onto_the_plan(tmp_path):
     assert after["collar_dev_m_mean"] < before["collar_dev_m_mean"] / 20
     record = json.loads((tmp_path / "after" / "small_quality.json").read_text())
     assert record["log_checksum"] == "verified" and record["missing_from_log"] == []
+    from pipeline.report import loop_lines  # the study's report renders the two summaries as its loop table
+
+    table = "\n".join(loop_lines({"before": before, "after": after}))
+    assert f"| before | {before['within']} of 6 |" in table
+    assert f"{1000 * after['collar_dev_m_mean']:.2f} / " in table
