@@ -6,6 +6,10 @@ A settings class is a frozen dataclass whose fields carry their rules (``field(m
 known one (``solver.deep_start: unknown setting; did you mean 'deep_starts'?``), and a field whose type
 is another settings class is parsed as a nested node. Stages parse every group they use first thing, so a
 bad value fails before data is loaded, files are written or an MLflow run is created.
+
+Every size, count, duration and iteration budget has an upper bound as well as a lower one (issue 55: a huge
+value must be refused by name, not end in an allocation traceback after minutes of work); each group's conf
+file states its bounds and why. Seeds are bounded by :data:`SEED_MAX`.
 """
 
 from __future__ import annotations
@@ -19,13 +23,16 @@ from typing import Any
 
 from pipeline.core.errors import ConfigError
 
+# the largest seed every consumer takes: numpy's legacy seeding stops at 2**32 - 1, torch's overflows above 2**64 - 1
+SEED_MAX = 2**32 - 1
+
 
 def rule(*, gt: float | None = None, ge: float | None = None, le: float | None = None,
-         choices: Sequence | None = None, min_items: int | None = None) -> dict:
+         choices: Sequence | None = None, min_items: int | None = None, max_items: int | None = None) -> dict:
     """Field metadata: bounds (``gt``, ``ge``, ``le``), allowed ``choices`` (of a value or of each item
-    of a list), and for a list its least length ``min_items``."""
+    of a list), and for a list its least and largest lengths ``min_items`` and ``max_items``."""
     return {"rule": {"gt": gt, "ge": ge, "le": le, "choices": tuple(choices) if choices else None,
-                     "min_items": min_items}}
+                     "min_items": min_items, "max_items": max_items}}
 
 
 def _kind(annotation: str) -> tuple[str, bool]:
@@ -67,10 +74,13 @@ def coerce(value: Any, kind: str, where: str) -> Any:
     return value  # anything else is checked by its own class
 
 
-def check_rule(value: Any, where: str, gt=None, ge=None, le=None, choices=None, min_items=None) -> None:
+def check_rule(value: Any, where: str, gt=None, ge=None, le=None, choices=None, min_items=None,
+               max_items=None) -> None:
     values = value if isinstance(value, (list, tuple)) else [value]
     if min_items is not None and len(values) < min_items:
         raise ConfigError(f"{where} = {list(values)!r}: expected at least {min_items} item(s)")
+    if max_items is not None and len(values) > max_items:
+        raise ConfigError(f"{where}: {len(values)} items, at most {max_items} allowed")
     for v in values:
         if choices is not None and v not in choices:
             raise ConfigError(f"{where} = {v!r}: expected one of {list(choices)}")
