@@ -149,6 +149,15 @@ def test_every_settings_default_equals_its_conf_value(cls):
     ("calibration.network.trainer=adam", r"trainer in \('lm', 'gd'\) required"),
     ("derive_box.holes=10", r"derive_box.holes = 10: must be >= 100"),
     ("holes.unsup.size=0", r"holes.unsup.size = 0: must be >= 1"),
+    # issue 55: every size, count, duration and iteration budget has an upper bound, refused by name before any
+    # work (a huge value ended in an allocation traceback after minutes); each bound is stated in its conf file
+    ("train.batch_size=100000000", r"train.batch_size = 100000000: must be <= 65536"),
+    ("train.steps=1e9", r"train.steps = 1000000000: must be <= 10000000"),
+    ("train.val_size=100000000", r"train.val_size = 100000000: must be <= 1000000"),
+    ("train.seed=1e20", r"train.seed = 100000000000000000000: must be <= 4294967295"),
+    ("model.width=1000000", r"model.width = 1000000: must be <= 4096"),
+    ("model.depth=1000", r"model.depth = 1000: must be <= 16"),
+    ("baselines.sikm.max_steps=1e9", r"baselines.sikm.max_steps = 1000000000: must be <= 10000000"),
 ])
 def test_bad_settings_are_named(override, pattern):
     with pytest.raises(ConfigError, match=pattern):

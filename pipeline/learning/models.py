@@ -23,14 +23,15 @@ from pipeline.geometry.kinematics import Boom
 
 ACTIVATIONS = {"gelu": nn.GELU, "relu": nn.ReLU, "silu": nn.SiLU, "tanh": nn.Tanh}
 CHECKPOINT_KEYS = ("state_dict", "hparams")
+MAX_WIDTH, MAX_DEPTH = 4096, 16  # conf/model/mlp.yaml (as distill's student)
 
 
 @dataclass(frozen=True)
 class ModelSettings:
     """The ``model`` config group."""
 
-    width: int = field(metadata=rule(ge=1))
-    depth: int = field(metadata=rule(ge=1))
+    width: int = field(metadata=rule(ge=1, le=MAX_WIDTH))  # the paper's 512; 4096 is 64x its weights a layer
+    depth: int = field(metadata=rule(ge=1, le=MAX_DEPTH))
     activation: str = field(default="gelu", metadata=rule(choices=sorted(ACTIVATIONS)))
 
     @classmethod

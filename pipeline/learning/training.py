@@ -33,7 +33,7 @@ from tqdm.auto import tqdm
 
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.core.io import atomic_write, file_md5
-from pipeline.core.settings import parse, rule
+from pipeline.core.settings import SEED_MAX, parse, rule
 from pipeline.core.signals import Terminated, raise_if_terminated
 from pipeline.data.hole_sets import read_hole_poses, read_hole_table
 from pipeline.data.holes import HoleSampling, sample_holes
@@ -56,19 +56,25 @@ log = logging.getLogger(__name__)
 
 Batches = Iterator[tuple[torch.Tensor, torch.Tensor | None]]
 
+# Bounds (conf/train/default.yaml): 15 000 steps take about 16 min on 2 cores, so 10^7 is a week; a batch and the
+# held-out holes live in memory with their forward kinematics and safety terms
+MAX_STEPS = 10_000_000
+MAX_BATCH = 65_536
+MAX_VAL = 1_000_000
+
 
 @dataclass(frozen=True)
 class TrainSettings:
     """The ``train`` config group."""
 
-    steps: int = field(metadata=rule(ge=1))
-    batch_size: int = field(metadata=rule(ge=1))
+    steps: int = field(metadata=rule(ge=1, le=MAX_STEPS))
+    batch_size: int = field(metadata=rule(ge=1, le=MAX_BATCH))
     lr: float = field(metadata=rule(gt=0))
-    seed: int = field(default=0, metadata=rule(ge=0))
+    seed: int = field(default=0, metadata=rule(ge=0, le=SEED_MAX))
     fresh_holes: bool = True
-    eval_every: int = field(default=250, metadata=rule(ge=1))
-    val_size: int = field(default=1000, metadata=rule(ge=1))
-    val_seed: int = field(default=999, metadata=rule(ge=0))
+    eval_every: int = field(default=250, metadata=rule(ge=1, le=MAX_STEPS))
+    val_size: int = field(default=1000, metadata=rule(ge=1, le=MAX_VAL))
+    val_seed: int = field(default=999, metadata=rule(ge=0, le=SEED_MAX))
     grad_clip: float | None = field(default=None, metadata=rule(gt=0))
     method_key: str = "method"
     keep_best: bool = True  # end with the weights of the best held-out evaluation, not the last step's
@@ -107,7 +113,7 @@ class MethodSettings:
     joint_metric: str = field(default="range", metadata=rule(choices=JOINT_METRICS))
     # at most this many training steps for this method (null: train.steps): a method whose best held-out
     # weights come early (SIKM on sampled labels overfits) need not pay the others' budget
-    max_steps: int | None = field(default=None, metadata=rule(ge=1))
+    max_steps: int | None = field(default=None, metadata=rule(ge=1, le=MAX_STEPS))
 
     @classmethod
     def from_config(cls, node: Mapping, where: str = "method") -> MethodSettings:
