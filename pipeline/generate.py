@@ -22,10 +22,10 @@ from pipeline.assembly.build import build_safety, hole_sampling
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import save_figure
-from pipeline.core.settings import parse, rule
+from pipeline.core.settings import SEED_MAX, parse, rule
 from pipeline.core.stage import run_stage
 from pipeline.data.couplings import parse_couplings
-from pipeline.data.hole_sets import SupervisedSet, build_hole_sets, write_hole_sets
+from pipeline.data.hole_sets import MAX_SET, MAX_TEST_GROUPS, SupervisedSet, build_hole_sets, write_hole_sets
 from pipeline.data.holes import joint_box
 from pipeline.data.tables import POSE_COLUMNS
 from pipeline.evaluation.plots import collar_clouds
@@ -37,14 +37,14 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class SetSize:
-    size: int = field(metadata=rule(ge=1))
-    seed: int = field(metadata=rule(ge=0))
+    size: int = field(metadata=rule(ge=1, le=MAX_SET))
+    seed: int = field(metadata=rule(ge=0, le=SEED_MAX))
 
 
 @dataclass(frozen=True)
 class TestGroups:
-    size: int = field(metadata=rule(ge=1))
-    seeds: list[int] = field(metadata=rule(ge=0))
+    size: int = field(metadata=rule(ge=1, le=MAX_SET))
+    seeds: list[int] = field(metadata=rule(ge=0, le=SEED_MAX, min_items=1, max_items=MAX_TEST_GROUPS))
 
 
 def supervised_sets(holes) -> dict[str, SupervisedSet]:

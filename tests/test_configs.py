@@ -158,6 +158,14 @@ def test_every_settings_default_equals_its_conf_value(cls):
     ("model.width=1000000", r"model.width = 1000000: must be <= 4096"),
     ("model.depth=1000", r"model.depth = 1000: must be <= 16"),
     ("baselines.sikm.max_steps=1e9", r"baselines.sikm.max_steps = 1000000000: must be <= 10000000"),
+    ("holes.unsup.size=1e9", r"holes.unsup.size = 1000000000: must be <= 1000000"),
+    ("holes.sup.size=1e8", r"holes.sup.size = 100000000: must be <= 1000000"),
+    ("holes.sup_variants.coupled.size=1e8", r"holes.sup_variants.coupled.size = 100000000: must be <= 1000000"),
+    ("holes.sup_variants.continuation.label_iters=1e6",
+     r"holes.sup_variants.continuation.label_iters = 1000000: must be <= 10000"),
+    ("holes.test.size=1e9", r"holes.test.size = 1000000000: must be <= 1000000"),
+    ("holes.test.seeds=[1,1e12]", r"holes.test.seeds = 1000000000000: must be <= 4294967295"),
+    (f"holes.test.seeds=[{','.join(map(str, range(101)))}]", r"holes.test.seeds: 101 items, at most 100 allowed"),
 ])
 def test_bad_settings_are_named(override, pattern):
     with pytest.raises(ConfigError, match=pattern):

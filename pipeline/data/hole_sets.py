@@ -20,7 +20,7 @@ import torch
 
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.core.io import file_md5, write_json, write_parquet
-from pipeline.core.settings import rule
+from pipeline.core.settings import SEED_MAX, rule
 from pipeline.data.consistency import label_consistency
 from pipeline.data.couplings import parse_couplings, sample_coupled_joints
 from pipeline.data.holes import HoleSampling, in_face_window, sample_holes, sample_joints
@@ -29,6 +29,11 @@ from pipeline.geometry.collision import SAFETY_KINDS, SafetyModel
 
 LABELS = ("sampled", "home_branch", "continuation", "continuation_clear", "continuation_rescue")
 REBUILD = "rebuild it with `python -m pipeline.generate` (or `dvc repro generate`)"
+# Bounds (conf/holes/default.yaml): ten times the largest set the study draws (100 000); a labelled set's holes are
+# each solved by LM, so a larger one only runs for hours
+MAX_SET = 1_000_000
+MAX_TEST_GROUPS = 100
+MAX_LABEL_ITERS = 10_000
 
 
 @dataclass(frozen=True)
@@ -49,13 +54,13 @@ class SupervisedSet:
     (:mod:`pipeline.data.couplings`, e.g. paper 000's pair, which leaves 6 free joints), not over
     the whole box."""
 
-    size: int = field(metadata=rule(ge=1))
-    seed: int = field(metadata=rule(ge=0))
+    size: int = field(metadata=rule(ge=1, le=MAX_SET))
+    seed: int = field(metadata=rule(ge=0, le=SEED_MAX))
     labels: str = field(default="sampled", metadata=rule(choices=LABELS))
     window: bool = False
     couplings: list | None = None
     poses: str = field(default="box", metadata=rule(choices=("box", "holes")))
-    label_iters: int | None = field(default=None, metadata=rule(ge=1))
+    label_iters: int | None = field(default=None, metadata=rule(ge=1, le=MAX_LABEL_ITERS))
 
     def __post_init__(self):
         if self.poses == "holes" and (self.labels == "sampled" or self.window or self.couplings is not None):
