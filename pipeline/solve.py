@@ -62,6 +62,14 @@ from pipeline.tracking.runs import TrackingSettings, stage_run
 log = logging.getLogger(__name__)
 
 LOGGED_TABLE_ROWS = 20_000
+# Bounds (conf/solve/default.yaml): a chunk's holes not ok after their first start are refined with all their extra
+# starts in one batch, about 16 KB a start (jumbo8 with its safety terms, measured), so the chunk times the most
+# starts of one kind is bounded too; plans and text nodes beyond these sizes are no drill plan
+MAX_CHUNK = 65_536
+MAX_BATCH_STARTS = 2**20  # chunk x starts: about 16 GB where every hole of a chunk needs the deep starts
+MAX_BOOM_VIEWS = 100
+LARGEST_PLAN_MB = 4096.0
+LARGEST_TEXT = 2**28
 
 
 @dataclass(frozen=True)
@@ -72,7 +80,7 @@ class IredesSettings:
     unit: str = "m"
     origin: tuple[float, ...] = (0.0, 0.0, 0.0)
     checksum: str = field(default="refuse", metadata=rule(choices=("refuse", "warn", "ignore")))
-    max_text: int = field(default=MAX_TEXT, metadata=rule(ge=1))
+    max_text: int = field(default=MAX_TEXT, metadata=rule(ge=1, le=LARGEST_TEXT))
     tmatrix_tol: float = field(default=TMATRIX_TOL, metadata=rule(gt=0))
 
 
@@ -83,16 +91,27 @@ class SolveSettings:
     network: str = "cuikm"
     model_uri: str | None = None
     figure: bool = True
-    max_boom_views: int = field(default=6, metadata=rule(ge=0))
-    chunk: int = field(default=2048, metadata=rule(ge=1))  # holes solved at a time: bounds memory, not the plan
+    max_boom_views: int = field(default=6, metadata=rule(ge=0, le=MAX_BOOM_VIEWS))
+    chunk: int = field(default=2048, metadata=rule(ge=1, le=MAX_CHUNK))  # holes at a time: bounds memory, not the plan
     progress: bool = True
-    max_plan_mb: float = field(default=MAX_PLAN_MB, metadata=rule(gt=0))
+    max_plan_mb: float = field(default=MAX_PLAN_MB, metadata=rule(gt=0, le=LARGEST_PLAN_MB))
     iredes: IredesSettings = field(default_factory=IredesSettings)
+
+
+def check_batch(settings: SolveSettings, hybrid: HybridSettings) -> None:
+    """ConfigError when a chunk's extra starts, refined in one batch, would not fit in memory (MAX_BATCH_STARTS)."""
+    name, starts = max((("solver.perturbed_starts", hybrid.perturbed_starts), ("solver.random_starts",
+                         hybrid.random_starts), ("solver.deep_starts", hybrid.deep_starts)), key=lambda kv: kv[1])
+    if settings.chunk * starts > MAX_BATCH_STARTS:
+        raise ConfigError(f"solve.chunk = {settings.chunk}: with {name} = {starts} a chunk refines up to "
+                          f"{settings.chunk * starts} starts in one batch (about 16 KB each), at most "
+                          f"{MAX_BATCH_STARTS}: lower solve.chunk")
 
 
 def run(cfg: DictConfig) -> dict:
     settings = parse(SolveSettings, cfg.solve, "solve")
     hybrid = parse(HybridSettings, cfg.solver, "solver")
+    check_batch(settings, hybrid)
     tracking = TrackingSettings.from_config(cfg.tracking)
     plan_path = project_path(coerce(cfg.plan, "str", "plan"))
     # Before any work: never the plan itself, never colliding names, never a folder (pipeline/plans/output.py).

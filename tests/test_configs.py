@@ -20,7 +20,7 @@ from pipeline.generate import SetSize, TestGroups, supervised_sets
 from pipeline.learning.distillation import DistillSettings
 from pipeline.learning.models import ModelSettings
 from pipeline.learning.training import MethodSettings, TrainSettings
-from pipeline.solve import SolveSettings
+from pipeline.solve import SolveSettings, check_batch
 from pipeline.solvers.hybrid import HybridSettings
 from pipeline.tracking.runs import TrackingSettings
 
@@ -53,6 +53,7 @@ def check_all_groups(cfg) -> None:
     """What each stage parses first thing, before it reads data or opens a run."""
     for cls, key in NODES.items():
         parse(cls, node(cfg, key), key)
+    check_batch(parse(SolveSettings, node(cfg, "solve"), "solve"), parse(HybridSettings, node(cfg, "solver"), "solver"))
     TrackingSettings.from_config(cfg.tracking)
     for key in METHOD_NODES:
         MethodSettings.from_config(OmegaConf.select(cfg, key), key)
@@ -166,6 +167,17 @@ def test_every_settings_default_equals_its_conf_value(cls):
     ("holes.test.size=1e9", r"holes.test.size = 1000000000: must be <= 1000000"),
     ("holes.test.seeds=[1,1e12]", r"holes.test.seeds = 1000000000000: must be <= 4294967295"),
     (f"holes.test.seeds=[{','.join(map(str, range(101)))}]", r"holes.test.seeds: 101 items, at most 100 allowed"),
+    ("solver.deep_starts=1e6", r"solver.deep_starts = 1000000: must be <= 1024"),
+    ("solver.random_starts=100000", r"solver.random_starts = 100000: must be <= 1024"),
+    ("solver.perturbed_starts=5000", r"solver.perturbed_starts = 5000: must be <= 1024"),
+    ("solver.max_iters=1e9", r"solver.max_iters = 1000000000: must be <= 1000"),
+    ("solver.deep_iters=1e6", r"solver.deep_iters = 1000000: must be <= 1000"),
+    ("solver.seed=1e20", r"solver.seed = 100000000000000000000: must be <= 4294967295"),
+    ("solve.chunk=1e9", r"solve.chunk = 1000000000: must be <= 65536"),
+    ("solve.chunk=65536", r"solve.chunk = 65536: with solver.deep_starts = 128 a chunk refines up to 8388608 starts"),
+    ("solve.max_boom_views=1e6", r"solve.max_boom_views = 1000000: must be <= 100"),
+    ("solve.max_plan_mb=1e12", r"solve.max_plan_mb = 1000000000000.0: must be <= 4096"),
+    ("solve.iredes.max_text=1e12", r"solve.iredes.max_text = 1000000000000: must be <= 268435456"),
 ])
 def test_bad_settings_are_named(override, pattern):
     with pytest.raises(ConfigError, match=pattern):

@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 import torch
 
 from pipeline.core.errors import ConfigError, InputError
-from pipeline.core.settings import rule
+from pipeline.core.settings import SEED_MAX, rule
 from pipeline.geometry.boom_pair import BoomPair
 from pipeline.geometry.collision import SAFETY_KINDS, SafetyModel
 from pipeline.geometry.kinematics import pose_errors
@@ -53,6 +53,10 @@ from pipeline.optim.least_squares import Damping, Evaluation, least_squares, pro
 from pipeline.solvers.base import HoleTargets, JointSpace, Solver, SolveResult, Targets
 
 STATUSES = ("ok", "inexact", "unsafe", "unreachable")
+# Bounds (conf/solver/hybrid.yaml): LM converges in a handful of iterations or not at all, and every start of every
+# hole not yet ok is refined in one batch (about 16 KB a start measured, jumbo8 with its safety terms)
+MAX_ITERS = 1000
+MAX_STARTS = 1024
 
 
 @dataclass(frozen=True)
@@ -61,19 +65,19 @@ class HybridSettings:
 
     tol_mm: float = field(default=0.01, metadata=rule(gt=0))  # exact: hole-seeking error at most this
     reach_tol_mm: float = field(default=1.0, metadata=rule(gt=0))  # beyond it, a hole is unreachable
-    max_iters: int = field(default=12, metadata=rule(ge=1))  # LM iterations per start
+    max_iters: int = field(default=12, metadata=rule(ge=1, le=MAX_ITERS))  # LM iterations per start
     # initial Marquardt damping: small, so a start near a solution takes Gauss-Newton steps (2 from a
     # network answer); it grows tenfold on every rejected step, so far starts stay safe
     damping: float = field(default=1e-5, metadata=rule(gt=0))
     margin: float = field(default=0.002, metadata=rule(ge=0))  # m kept beyond each safety distance
     guard: float = field(default=0.1, metadata=rule(gt=0))  # m: clearances this far above are not re-measured each step
     clearance_weight: float = field(default=1.0, metadata=rule(gt=0))
-    perturbed_starts: int = field(default=8, metadata=rule(ge=0))
-    random_starts: int = field(default=16, metadata=rule(ge=0))
-    deep_starts: int = field(default=128, metadata=rule(ge=0))  # last resort: many random starts ...
-    deep_iters: int = field(default=30, metadata=rule(ge=1))  # ... with a longer budget each
+    perturbed_starts: int = field(default=8, metadata=rule(ge=0, le=MAX_STARTS))
+    random_starts: int = field(default=16, metadata=rule(ge=0, le=MAX_STARTS))
+    deep_starts: int = field(default=128, metadata=rule(ge=0, le=MAX_STARTS))  # last resort: many random starts ...
+    deep_iters: int = field(default=30, metadata=rule(ge=1, le=MAX_ITERS))  # ... with a longer budget each
     perturb: float = field(default=0.05, metadata=rule(gt=0))  # start noise, fraction of each joint's range
-    seed: int = field(default=0, metadata=rule(ge=0))
+    seed: int = field(default=0, metadata=rule(ge=0, le=SEED_MAX))
     # among ok solutions of a hole: the largest clearance, or the nearest to the start (least joint motion)
     prefer: str = field(default="clearance", metadata=rule(choices=("clearance", "start")))
 
