@@ -34,7 +34,7 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class EvalSettings:
     methods: list[str] = field(metadata=rule())  # networks under paths.data/models/<method>.pt
-    timing_repeats: int = field(default=5, metadata=rule(ge=1))
+    timing_repeats: int = field(default=5, metadata=rule(ge=1, le=1000))  # each a solve of every test hole
 
 
 def run(cfg: DictConfig) -> dict:

@@ -23,11 +23,15 @@ from pipeline.data.holes import joint_box
 from pipeline.data.tables import COLLAR_COLUMNS, TOE_COLUMNS, collar_toe_poses, read_table
 from pipeline.evaluation.markdown import markdown_table
 from pipeline.evaluation.paper_experiments import ga_experiments, paper_metrics, pso_experiments, rbf_experiment
+from pipeline.solvers import check_entry
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
 
 def run(cfg: DictConfig) -> dict:
     papers, tracking = cfg.benchmark.papers, TrackingSettings.from_config(cfg.tracking)
+    rbf_specs = {m: OmegaConf.to_container(cfg.benchmark.solvers[m], resolve=True) for m in papers.rbf.methods}
+    for m, spec in rbf_specs.items():  # the entries' sizes, before any input is read
+        check_entry(m, spec)
     data = project_path(cfg.paths.data)
     out = data / "benchmark" / "papers"
     # inputs first: the swarms take minutes, a missing hole set must not wait for them
@@ -37,7 +41,6 @@ def run(cfg: DictConfig) -> dict:
     face = blast_holes(data / "plans" / "demo_face.csv", boom.preview_depth)
     box = cfg.holes.sup.get("box")
     box = joint_box(boom, None if box is None else as_dict(box))
-    rbf_specs = {m: OmegaConf.to_container(cfg.benchmark.solvers[m], resolve=True) for m in papers.rbf.methods}
     with stage_run(tracking, "paper_baselines", {"stage": "paper_baselines"}) as mlrun:
         mlrun.log_params({"papers": OmegaConf.to_container(papers, resolve=True)})
         tables = {}

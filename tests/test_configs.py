@@ -178,6 +178,20 @@ def test_every_settings_default_equals_its_conf_value(cls):
     ("solve.max_boom_views=1e6", r"solve.max_boom_views = 1000000: must be <= 100"),
     ("solve.max_plan_mb=1e12", r"solve.max_plan_mb = 1000000000000.0: must be <= 4096"),
     ("solve.iredes.max_text=1e12", r"solve.iredes.max_text = 1000000000000: must be <= 268435456"),
+    ("eval.timing_repeats=1e6", r"eval.timing_repeats = 1000000: must be <= 1000"),
+    ("benchmark.holes=1e9", r"benchmark.holes = 1000000000: must be <= 1000000"),
+    ("benchmark.groups=[1,1000]", r"benchmark.groups = 1000: must be <= 100"),
+    ("benchmark.single=1e9", r"benchmark.single = 1000000000: must be <= 10000"),
+    ("benchmark.reference_ok_sample=1e9", r"benchmark.reference_ok_sample = 1000000000: must be <= 100000"),
+    ("benchmark.solvers.rbf.samples=1e6", r"benchmark.solvers.rbf.samples = 1000000: must be <= 20000"),
+    ("benchmark.solvers.pso.population=1e9", r"benchmark.solvers.pso.population = 1000000000: must be <= 10000"),
+    ("benchmark.solvers.ceopso.iterations=1e9", r"benchmark.solvers.ceopso.iterations = 1000000000: must be <= 10000"),
+    ("+benchmark.solvers.ga.grid=100", r"benchmark.solvers.ga.grid = 100: must be <= 10"),
+    ("benchmark.solvers.ga.generations=1e7", r"benchmark.solvers.ga.generations = 10000000: must be <= 10000"),
+    ("benchmark.solvers.nm.restarts=1e6", r"benchmark.solvers.nm.restarts = 1000000: must be <= 1000"),
+    ("benchmark.solvers.hybrid.single=1e9", r"benchmark.solvers.hybrid.single = 1000000000: must be <= 10000"),
+    ("benchmark.solvers.nm_coupled.max_holes=1e9", r"solvers.nm_coupled.max_holes = 1000000000: must be <= 1000000"),
+    ("benchmark.solvers.rbf.seed=abc", r"benchmark.solvers.rbf.seed = 'abc': expected an integer"),
 ])
 def test_bad_settings_are_named(override, pattern):
     with pytest.raises(ConfigError, match=pattern):

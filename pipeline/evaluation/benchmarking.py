@@ -11,6 +11,7 @@ import math
 import statistics
 import time
 from collections import Counter
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -20,13 +21,13 @@ import torch
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import save_figure, write_csv, write_json, write_text
 from pipeline.core.settings import rule
-from pipeline.data.hole_sets import read_hole_poses
+from pipeline.data.hole_sets import MAX_SET, MAX_TEST_GROUPS, read_hole_poses
 from pipeline.evaluation.markdown import markdown_table
 from pipeline.evaluation.metrics import solution_table, summarize
 from pipeline.evaluation.peer_timing import single_latencies, threads
 from pipeline.evaluation.plots import error_vs_time
 from pipeline.evaluation.status_reference import status_agreement
-from pipeline.solvers import HoleTargets, Solver, SolveResult, build_solver
+from pipeline.solvers import HARNESS_BOUNDS, HoleTargets, Solver, SolveResult, build_solver, check_entry
 from pipeline.solvers.hybrid import HybridSettings
 from pipeline.solvers.peers import PeersUnavailable
 
@@ -43,14 +44,20 @@ OK_MM = 0.01  # "ok" for every method alike: hole-seeking error <= 0.01 mm and n
 class BenchmarkSettings:
     """The ``benchmark`` group (each solver entry is checked by ``build_solver``, ``papers`` by paper_baselines)."""
 
-    groups: list[int] = field(metadata=rule(ge=1))
-    holes: int = field(metadata=rule(ge=1))  # per group
+    groups: list[int] = field(metadata=rule(ge=1, le=MAX_TEST_GROUPS, min_items=1, max_items=MAX_TEST_GROUPS))
+    holes: int = field(metadata=rule(ge=1, le=MAX_SET))  # per group
     methods: list[str]
-    solvers: dict  # method -> its entry (kind and that solver's parameters)
+    solvers: dict  # method -> its entry (kind and that solver's parameters; its sizes checked here)
     papers: dict
-    single: int = field(default=20, metadata=rule(ge=0))  # holes solved alone, one thread (a solver entry's own
-    # ``single`` overrides it: the rows whose tail is a target take 1 000)
-    reference_ok_sample: int = field(default=200, metadata=rule(ge=0))  # hybrid statuses vs a slow search
+    single: int = field(default=20, metadata=rule(ge=0, le=HARNESS_BOUNDS["single"][1]))  # holes solved alone, one
+    # thread (a solver entry's own ``single`` overrides it: the rows whose tail is a target take 1 000)
+    reference_ok_sample: int = field(default=200, metadata=rule(ge=0, le=100_000))  # hybrid statuses vs a slow search
+
+    def __post_init__(self):
+        if not isinstance(self.solvers, Mapping):
+            raise ConfigError(f"benchmark.solvers = {self.solvers!r}: expected a mapping method -> entry")
+        for name, spec in self.solvers.items():
+            check_entry(str(name), spec)
 
 
 def load_holes(holes_dir, groups: list[int], n: int) -> torch.Tensor:

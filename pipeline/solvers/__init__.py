@@ -8,7 +8,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from pipeline.core.errors import ConfigError
-from pipeline.core.settings import parse, unknown_keys
+from pipeline.core.settings import SEED_MAX, check_rule, coerce, parse, unknown_keys
 from pipeline.geometry.collision import SafetyModel
 from pipeline.geometry.kinematics import Boom
 from pipeline.solvers.base import FrameTargets, HoleTargets, NetworkSolver, Solver, SolveResult
@@ -35,6 +35,33 @@ def _init_solver(name: str, init, boom: Boom, models_dir: Path, specs: Mapping |
 HYBRID_ENTRY = ("init",)  # a hybrid entry's own keys: its settings are the `solver` group (conf/solver/hybrid.yaml)
 # keys of a benchmark entry that are the harness's (how many holes, how many timed alone), not the solver's
 HARNESS_KEYS = ("max_holes", "single")
+
+# Bounds of the sizes of a solver entry (conf/benchmark/default.yaml), checked when the benchmark group is parsed:
+# beyond them a solver only runs out of time or memory. An exact RBF solves a dense train x train system (20 000:
+# 3.2 GB), a swarm or GA evaluates population x holes boom poses a step, the GA's workspace boxes take grid^joints
+# forward kinematics (10^6 on rescue6), and NM's restarts and the peers' limits are iterations of every hole.
+HARNESS_BOUNDS = {"max_holes": (1, 1_000_000), "single": (0, 10_000)}  # every entry's HARNESS_KEYS
+ENTRY_BOUNDS: dict[str, dict[str, tuple[int, int]]] = {  # by kind
+    "nm": {"max_iters": (1, 10_000), "restarts": (0, 1000), "seed": (0, SEED_MAX)},
+    "rbf": {"samples": (2, 20_000), "train": (1, 20_000), "roll_grid": (0, 360), "seed": (0, SEED_MAX)},
+    "pso": {"population": (2, 10_000), "iterations": (1, 10_000), "seed": (0, SEED_MAX)},
+    "ga": {"population": (4, 10_000), "generations": (1, 10_000), "grid": (2, 10), "seed": (0, SEED_MAX)},
+    "rtb_ik_lm": {"ilimit": (1, 10_000), "slimit": (1, 10_000), "restarts": (0, 1000), "seed": (0, SEED_MAX)},
+    "pinocchio_clik": {"max_iters": (1, 10_000), "restarts": (0, 1000), "seed": (0, SEED_MAX)},
+}
+
+
+def check_entry(name: str, spec: Mapping, where: str = "benchmark.solvers") -> None:
+    """ConfigError naming the first size of the entry ``spec`` out of its range (:data:`ENTRY_BOUNDS`), before any
+    solver is built; its other keys are checked when it is built."""
+    if not isinstance(spec, Mapping):
+        raise ConfigError(f"{where}.{name} = {spec!r}: expected a mapping with kind and that solver's parameters")
+    kind = spec.get("kind")
+    bounds = {**HARNESS_BOUNDS, **(ENTRY_BOUNDS.get(kind, {}) if isinstance(kind, str) else {})}
+    for key, (lo, hi) in bounds.items():
+        if spec.get(key) is not None:
+            value = coerce(spec[key], "int", f"{where}.{name}.{key}")
+            check_rule(value, f"{where}.{name}.{key}", ge=lo, le=hi)
 
 
 def build_solver(name: str, spec: Mapping, boom: Boom, models_dir: Path, specs: Mapping | None = None,
