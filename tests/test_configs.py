@@ -192,6 +192,20 @@ def test_every_settings_default_equals_its_conf_value(cls):
     ("benchmark.solvers.hybrid.single=1e9", r"benchmark.solvers.hybrid.single = 1000000000: must be <= 10000"),
     ("benchmark.solvers.nm_coupled.max_holes=1e9", r"solvers.nm_coupled.max_holes = 1000000000: must be <= 1000000"),
     ("benchmark.solvers.rbf.seed=abc", r"benchmark.solvers.rbf.seed = 'abc': expected an integer"),
+    ("calibration.n_measurements=[10,1e7]", r"calibration.n_measurements = 10000000: must be <= 10000"),
+    ("calibration.holdout=1e9", r"calibration.holdout = 1000000000: must be <= 100000"),
+    ("calibration.ik.max_iters=1e9", r"calibration.ik.max_iters = 1000000000: must be <= 10000"),
+    ("calibration.ik.restarts=1e6", r"calibration.ik.restarts = 1000000: must be <= 1000"),
+    ("calibration.network.hidden=[8,100000]", r"calibration.network.hidden = 100000: must be <= 128"),
+    ("calibration.network.hidden=[8,8,8,8,8]", r"calibration.network.hidden: 5 items, at most 4 allowed"),
+    ("calibration.network.iterations=1e9", r"calibration.network.iterations = 1000000000: must be <= 100000"),
+    ("calibration.swarm.pso.population=1e9", r"calibration.swarm.pso.population = 1000000000: must be <= 10000"),
+    ("calibration.swarm.ssa.iterations=1e9", r"calibration.swarm.ssa.iterations = 1000000000: must be <= 10000"),
+    ("calibration.identification.basis_poses=1e9",
+     r"calibration.identification.basis_poses = 1000000000: must be <= 100000"),
+    ("calibration.identification.max_iters=1e9", r"identification.max_iters = 1000000000: must be <= 10000"),
+    ("calibration.gate.folds=1e6", r"calibration.gate.folds = 1000000: must be <= 100"),
+    ("calibration.seeds.noise=1e20", r"calibration.seeds.noise = 100000000000000000000: must be <= 4294967295"),
 ])
 def test_bad_settings_are_named(override, pattern):
     with pytest.raises(ConfigError, match=pattern):

@@ -29,6 +29,7 @@ import torch
 from torch.func import jacfwd
 
 from pipeline.core.errors import ConfigError, InputError
+from pipeline.core.settings import rule
 from pipeline.optim.least_squares import Damping, Evaluation, least_squares
 from pipeline.optim.scaling import MinMax
 from pipeline.optim.swarm import PSOParams, SSAParams, pso_minimize, ssa_minimize
@@ -42,8 +43,10 @@ INITS = {"bp": "random", "pso-bp": "pso", "ssa-bp": "ssa"}  # method -> how the 
 
 @dataclass(frozen=True)
 class NetworkParams:
-    hidden: tuple[int, ...] = (8,)  # paper 004: one hidden layer of 8
-    iterations: int = 100
+    # paper 004: one hidden layer of 8. Bounds (conf/calibration/default.yaml): at most 4 layers of 128, whose
+    # weights the swarms carry per particle and LM's Jacobian per measured equation
+    hidden: tuple[int, ...] = field(default=(8,), metadata=rule(ge=1, le=128, min_items=1, max_items=4))
+    iterations: int = field(default=100, metadata=rule(ge=0, le=100_000))
     lr: float = 0.1  # gradient descent only
     goal: float = 1e-4  # training MSE at which BP stops
     trainer: str = "gd"  # the paper's gradient descent with lr, as conf/calibration and docs say

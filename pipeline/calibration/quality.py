@@ -40,7 +40,7 @@ class GateSettings:
 
     min_equation_ratio: float = field(default=3.0, metadata=rule(ge=1))
     residual_ratio: tuple[float, ...] = field(default=(0.33, 3.0), metadata=rule(ge=0))
-    folds: int = field(default=5, metadata=rule(ge=2))
+    folds: int = field(default=5, metadata=rule(ge=2, le=100))  # each a fit of the other poses
     holdout_factor: float = field(default=2.0, metadata=rule(gt=1))
     duplicates: str = field(default="refuse", metadata=rule(choices=("refuse", "warn")))
 

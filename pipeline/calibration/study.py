@@ -38,7 +38,7 @@ from pipeline.calibration.swarm import PSOParams, SSAParams
 from pipeline.core.config import project_path
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.core.io import save_figure, write_csv, write_text
-from pipeline.core.settings import parse, rule
+from pipeline.core.settings import SEED_MAX, parse, rule
 from pipeline.data.holes import HoleSampling, sample_holes
 from pipeline.evaluation.markdown import markdown_table
 from pipeline.evaluation.plots import calibration_figure
@@ -48,6 +48,10 @@ from pipeline.solvers.base import HoleTargets
 log = logging.getLogger(__name__)
 
 METHODS = ("uncompensated", *INITS, "identification")
+# Bounds (conf/calibration/default.yaml): ten times the paper's 1 000 measured poses, each an NM solve and five
+# equations of LM (whose Jacobian also spans the network's weights); the held-out and basis poses are NM solves too
+MAX_MEASUREMENTS = 10_000
+MAX_POSES = 100_000
 COLUMNS = ["method", "level", "n_measurements", "collar_mm_mean", "collar_mm_max", "direction_deg_mean",
            "collar_mm_p95", "direction_deg_max", "hole_mm_mean", "any_violation_share", "samples", "fit_s", "note"]
 
@@ -56,21 +60,22 @@ COLUMNS = ["method", "level", "n_measurements", "collar_mm_mean", "collar_mm_max
 class Seeds:
     """``calibration.seeds``: none shared with holes (0, 1, 101-105) or train (999)."""
 
-    errors: int = field(default=13, metadata=rule(ge=0))  # the true boom's error twists
-    poses: int = field(default=1301, metadata=rule(ge=0))  # face holes whose nominal IK solutions are measured
-    noise: int = field(default=1302, metadata=rule(ge=0))  # sensor noise
-    holdout: int = field(default=1303, metadata=rule(ge=0))  # the held-out face holes
-    network: int = field(default=1304, metadata=rule(ge=0))  # BP initial weights and the swarms
+    errors: int = field(default=13, metadata=rule(ge=0, le=SEED_MAX))  # the true boom's error twists
+    # face holes whose nominal IK solutions are measured
+    poses: int = field(default=1301, metadata=rule(ge=0, le=SEED_MAX))
+    noise: int = field(default=1302, metadata=rule(ge=0, le=SEED_MAX))  # sensor noise
+    holdout: int = field(default=1303, metadata=rule(ge=0, le=SEED_MAX))  # the held-out face holes
+    network: int = field(default=1304, metadata=rule(ge=0, le=SEED_MAX))  # BP initial weights and the swarms
 
 
 @dataclass(frozen=True)
 class IKSettings:
     """``calibration.ik``: paper 000's NM on the nominal or identified model."""
 
-    max_iters: int = field(default=100, metadata=rule(ge=1))
+    max_iters: int = field(default=100, metadata=rule(ge=1, le=10_000))
     tol: float = field(default=1e-7, metadata=rule(gt=0))  # |pose6 residual| (m)
     damping: float = field(default=1e-3, metadata=rule(gt=0))
-    restarts: int = field(default=0, metadata=rule(ge=0))
+    restarts: int = field(default=0, metadata=rule(ge=0, le=1000))
     pair_tol: float = field(default=1e-6, metadata=rule(gt=0))  # a training pair must reach its pose within this (m)
 
 
@@ -85,8 +90,8 @@ class SwarmSettings:
 @dataclass(frozen=True)
 class IdentificationSettings:
     weights: Weights = field(default_factory=Weights)
-    max_iters: int = field(default=50, metadata=rule(ge=1))
-    basis_poses: int = field(default=200, metadata=rule(ge=1))
+    max_iters: int = field(default=50, metadata=rule(ge=1, le=10_000))
+    basis_poses: int = field(default=200, metadata=rule(ge=1, le=MAX_POSES))
     max_condition: float = field(default=1e8, metadata=rule(gt=0))
 
 
@@ -107,8 +112,9 @@ class CalibrationSettings:
     model_file: str
     run_levels: list[str] = field(default_factory=lambda: ["paper", "field"], metadata=rule(min_items=1))
     methods: list[str] = field(default_factory=lambda: list(METHODS), metadata=rule(choices=METHODS, min_items=1))
-    n_measurements: list[int] = field(default_factory=lambda: [10, 30, 100, 1000], metadata=rule(ge=2, min_items=1))
-    holdout: int = field(default=1000, metadata=rule(ge=1))
+    n_measurements: list[int] = field(default_factory=lambda: [10, 30, 100, 1000],
+                                      metadata=rule(ge=2, le=MAX_MEASUREMENTS, min_items=1, max_items=20))
+    holdout: int = field(default=1000, metadata=rule(ge=1, le=MAX_POSES))
     error_distribution: str = field(default="sign", metadata=rule(choices=DISTRIBUTIONS))
     seeds: Seeds = field(default_factory=Seeds)
     ik: IKSettings = field(default_factory=IKSettings)

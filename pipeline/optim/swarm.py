@@ -21,14 +21,19 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 
 from pipeline.core.errors import ConfigError
+from pipeline.core.settings import rule
 
 DTYPE = torch.float64
 Objective = Callable[[torch.Tensor], torch.Tensor]
+# Bounds of a config's swarm (calibration.swarm; parse checks them, conf/calibration/default.yaml states them): a
+# step evaluates the whole population, each particle a network or a boom pose
+MAX_POPULATION = 10_000
+MAX_ITERATIONS = 10_000
 
 
 def _require(checks: Mapping[str, bool], what: str, value) -> None:
@@ -41,8 +46,8 @@ def _require(checks: Mapping[str, bool], what: str, value) -> None:
 class PSOParams:
     """The swarm's settings (``calibration.swarm.pso``; the IK solver's in ``solvers.pso``)."""
 
-    population: int = 30
-    iterations: int = 50
+    population: int = field(default=30, metadata=rule(ge=2, le=MAX_POPULATION))
+    iterations: int = field(default=50, metadata=rule(ge=1, le=MAX_ITERATIONS))
     w_max: float = 0.9
     w_min: float = 0.4
     c1: float = 2.0
@@ -72,8 +77,8 @@ class PSOParams:
 
 @dataclass(frozen=True)
 class SSAParams:
-    population: int = 30
-    iterations: int = 50
+    population: int = field(default=30, metadata=rule(ge=3, le=MAX_POPULATION))
+    iterations: int = field(default=50, metadata=rule(ge=1, le=MAX_ITERATIONS))
     producers: float = 0.2  # PD: share of producers
     scouts: float = 0.2  # SD: share that perceives danger (the alarm)
     safety: float = 0.8  # ST: safety threshold in [0.5, 1]; the alarm value R2 is uniform in [0, 1]
