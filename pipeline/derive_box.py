@@ -19,7 +19,7 @@ from omegaconf import DictConfig
 from pipeline.assembly.build import build_safety, hole_sampling
 from pipeline.core.config import CONF_DIR
 from pipeline.core.io import write_text
-from pipeline.core.settings import parse, rule
+from pipeline.core.settings import SEED_MAX, parse, rule
 from pipeline.core.stage import run_stage
 from pipeline.learning.supervised_set import derive_working_box
 from pipeline.solvers.labels import local_search
@@ -29,8 +29,8 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class DeriveBoxSettings:
-    holes: int = field(default=5000, metadata=rule(ge=100))
-    seed: int = field(default=7, metadata=rule(ge=0))
+    holes: int = field(default=5000, metadata=rule(ge=100, le=1_000_000))  # each solved by the local search
+    seed: int = field(default=7, metadata=rule(ge=0, le=SEED_MAX))
     percentiles: list[float] = field(default_factory=lambda: [1.0, 99.0], metadata=rule(ge=0, le=100))
 
 

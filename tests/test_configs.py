@@ -206,6 +206,17 @@ def test_every_settings_default_equals_its_conf_value(cls):
     ("calibration.identification.max_iters=1e9", r"identification.max_iters = 1000000000: must be <= 10000"),
     ("calibration.gate.folds=1e6", r"calibration.gate.folds = 1000000: must be <= 100"),
     ("calibration.seeds.noise=1e20", r"calibration.seeds.noise = 100000000000000000000: must be <= 4294967295"),
+    ("export.check.holes=1e9", r"export.check.holes = 1000000000: must be <= 1000000"),
+    ("export.benchmark.batches=[1,1e8]", r"export.benchmark.batches = 100000000: must be <= 65536"),
+    ("export.benchmark.ort_threads=[1,100000]", r"export.benchmark.ort_threads = 100000: must be <= 256"),
+    ("export.benchmark.min_repeats=1e9", r"export.benchmark.min_repeats = 1000000000: must be <= 100000"),
+    ("export.benchmark.min_time_s=1e9", r"export.benchmark.min_time_s = 1000000000.0: must be <= 3600"),
+    ("derive_box.holes=1e9", r"derive_box.holes = 1000000000: must be <= 1000000"),
+    ("runtime.threads=100000", r"runtime.threads = 100000: must be <= 256"),
+    ("runtime.train_threads=1e6", r"runtime.train_threads = 1000000: must be <= 256"),
+    ("runtime.checkpoint_every=1e12", r"runtime.checkpoint_every = 1000000000000: must be <= 10000000"),
+    ("tracking.busy_timeout_s=1e12", r"tracking.busy_timeout_s = 1000000000000.0: expected a number of seconds in "
+                                     r"\[0, 86400\]"),
 ])
 def test_bad_settings_are_named(override, pattern):
     with pytest.raises(ConfigError, match=pattern):

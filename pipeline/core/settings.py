@@ -25,6 +25,8 @@ from pipeline.core.errors import ConfigError
 
 # the largest seed every consumer takes: numpy's legacy seeding stops at 2**32 - 1, torch's overflows above 2**64 - 1
 SEED_MAX = 2**32 - 1
+# the most threads a thread setting takes: a thread pool beyond it is a typo (the reference machine has 2 cores)
+MAX_THREADS = 256
 
 
 def rule(*, gt: float | None = None, ge: float | None = None, le: float | None = None,
@@ -151,12 +153,14 @@ def _settings_class(hint) -> type | None:
 class RuntimeSettings:
     """The ``runtime`` group: how stages run here, never what they compute (conf/runtime/default.yaml)."""
 
-    threads: int | None = dataclasses.field(default=2, metadata=rule(ge=1))  # benchmark, solve, paper_baselines, ...
-    train_threads: int | None = dataclasses.field(default=None, metadata=rule(ge=1))
-    calibrate_threads: int | None = dataclasses.field(default=1, metadata=rule(ge=1))
+    # benchmark, solve, paper_baselines, ...
+    threads: int | None = dataclasses.field(default=2, metadata=rule(ge=1, le=MAX_THREADS))
+    train_threads: int | None = dataclasses.field(default=None, metadata=rule(ge=1, le=MAX_THREADS))
+    calibrate_threads: int | None = dataclasses.field(default=1, metadata=rule(ge=1, le=MAX_THREADS))
     progress: bool = True  # train's tqdm bar
     log_model: bool = True  # train: the network logged as an MLflow model
-    checkpoint_every: int = dataclasses.field(default=1000, metadata=rule(ge=0))  # train: steps between resume states
+    # train: steps between resume states
+    checkpoint_every: int = dataclasses.field(default=1000, metadata=rule(ge=0, le=10_000_000))
     resume: bool = True  # train: continue an interrupted training of the same settings, data and code (same weights)
 
     @classmethod

@@ -23,7 +23,8 @@ import torch
 from pipeline.assembly.build import build_safety
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import publish, write_json
-from pipeline.core.settings import rule
+from pipeline.core.settings import MAX_THREADS, SEED_MAX, rule
+from pipeline.data.hole_sets import MAX_SET
 from pipeline.data.holes import HoleSampling, sample_holes
 from pipeline.data.tables import POSE_COLUMNS
 from pipeline.deploy import formats
@@ -36,8 +37,8 @@ from pipeline.learning.models import IKNet
 class CheckSettings:
     """``export.check``: the holes every export is compared with eager torch on."""
 
-    holes: int = field(default=1000, metadata=rule(ge=2))
-    seed: int = field(default=7, metadata=rule(ge=0))
+    holes: int = field(default=1000, metadata=rule(ge=2, le=MAX_SET))
+    seed: int = field(default=7, metadata=rule(ge=0, le=SEED_MAX))
     tolerance: float = field(default=1e-5, metadata=rule(gt=0))  # largest joint difference (rad or m)
 
 
@@ -45,15 +46,17 @@ class CheckSettings:
 class LatencySettings:
     """``export.benchmark``: the latency harness (:mod:`pipeline.deploy.latency`)."""
 
-    threads: int = field(default=2, metadata=rule(ge=1))
-    batches: list[int] = field(default_factory=lambda: [1, 1000], metadata=rule(ge=1, min_items=1))
-    ort_threads: list[int] = field(default_factory=lambda: [1, 2], metadata=rule(ge=1, min_items=1))
+    threads: int = field(default=2, metadata=rule(ge=1, le=MAX_THREADS))
+    batches: list[int] = field(default_factory=lambda: [1, 1000], metadata=rule(ge=1, le=65_536, min_items=1,
+                                                                                  max_items=20))
+    ort_threads: list[int] = field(default_factory=lambda: [1, 2], metadata=rule(ge=1, le=MAX_THREADS, min_items=1,
+                                                                                 max_items=20))
     compile: bool = True
-    min_time_s: float = field(default=2.0, metadata=rule(ge=0))
-    min_repeats: int = field(default=50, metadata=rule(ge=1))
-    rounds: int = field(default=5, metadata=rule(ge=1))
+    min_time_s: float = field(default=2.0, metadata=rule(ge=0, le=3600))
+    min_repeats: int = field(default=50, metadata=rule(ge=1, le=100_000))
+    rounds: int = field(default=5, metadata=rule(ge=1, le=1000))
     isolate: bool = True
-    seed: int = field(default=0, metadata=rule(ge=0))
+    seed: int = field(default=0, metadata=rule(ge=0, le=SEED_MAX))
 
 
 @dataclass(frozen=True)

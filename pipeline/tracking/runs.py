@@ -41,6 +41,7 @@ log = logging.getLogger(__name__)
 
 EXPERIMENT_KIND = {"mlflow.experimentKind": "custom_model_development"}
 END_REASON = "run.end_reason"
+MAX_BUSY_S = 86_400  # tracking.busy_timeout_s: conf/tracking/default.yaml
 
 
 # ---------------------------------------------------------------------------------------- settings
@@ -91,8 +92,10 @@ class TrackingSettings:
         if isinstance(port, bool) or not isinstance(port, int) or not 0 < port < 65536:
             raise ConfigError(f"tracking.ui_port = {port!r}: expected a port number (1-65535)")
         busy = node.get("busy_timeout_s", 120.0)
-        if isinstance(busy, bool) or not isinstance(busy, (int, float)) or not math.isfinite(busy) or busy < 0:
-            raise ConfigError(f"tracking.busy_timeout_s = {busy!r}: expected a number of seconds >= 0")
+        if (isinstance(busy, bool) or not isinstance(busy, (int, float)) or not math.isfinite(busy) or busy < 0
+                or busy > MAX_BUSY_S):
+            raise ConfigError(f"tracking.busy_timeout_s = {busy!r}: expected a number of seconds in [0, {MAX_BUSY_S}] "
+                              "(a day: a store locked longer is stuck, not busy)")
         settings = cls(enabled, resolve_uri(node.get("uri")), experiment,
                        root if root.is_absolute() else main_root() / root, system_metrics, register, host, port,
                        float(busy))
