@@ -42,7 +42,7 @@ class QualitySettings:
     collar_tol_m: float = field(default=0.1, metadata=rule(gt=0))
     toe_tol_share: float = field(default=0.06, metadata=rule(gt=0, le=1))
     figure: bool = True
-    max_log_mb: float = field(default=256.0, metadata=rule(gt=0))
+    max_log_mb: float = field(default=256.0, metadata=rule(gt=0, le=4096))  # as solve.max_plan_mb
 
 
 def run(cfg: DictConfig) -> dict:

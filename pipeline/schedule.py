@@ -50,7 +50,7 @@ from pipeline.calibration.model_file import model_setting
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import file_md5, require_writable, save_figure, write_csv, write_text
-from pipeline.core.settings import RuntimeSettings, coerce, parse, rule
+from pipeline.core.settings import SEED_MAX, RuntimeSettings, coerce, parse, rule
 from pipeline.core.stage import run_stage
 from pipeline.data.holes import joint_box
 from pipeline.execution.montecarlo import parse_execution
@@ -72,6 +72,10 @@ from pipeline.tracking.runs import TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
 
+# a generated benchmark face's holes (conf/schedule/default.yaml): the benchmark's faces have 50 to 150; 1000 is far
+# beyond any tunnel face (and generated_face needs 20: cut, perimeter, stoping)
+FACE_HOLES = (20, 1000)
+
 
 @dataclass(frozen=True)
 class ScheduleSettings:
@@ -82,15 +86,25 @@ class ScheduleSettings:
     baselines: bool = True
     figures: bool = True
     replay: bool = True
-    replay_frames: int = field(default=120, metadata=rule(ge=2))
+    replay_frames: int = field(default=120, metadata=rule(ge=2, le=10_000))
     check_moves: bool = True
     benchmark: bool = False  # true: the round benchmark (faces x rigs) instead of one plan
-    bench_faces: list = field(default_factory=lambda: ["demo", 50, 100, 150])
-    bench_rigs: list = field(default_factory=lambda: ["single", "twin", "trio"])
-    bench_seed: int = 0
+    bench_faces: list = field(default_factory=lambda: ["demo", 50, 100, 150], metadata=rule(min_items=1, max_items=20))
+    bench_rigs: list = field(default_factory=lambda: ["single", "twin", "trio"], metadata=rule(min_items=1,
+                                                                                               max_items=20))
+    bench_seed: int = field(default=0, metadata=rule(ge=0, le=SEED_MAX))
     strict: bool = False  # true: exit 1 (after writing the set) on conflicts left, failed moves, the fallback,
     # or a round the interlocks cannot make robust
     interlocks: bool = True  # the round executed by events: actions, interlocks, draws (pipeline.execution)
+
+    def __post_init__(self):
+        for k, face in enumerate(self.bench_faces):
+            if face == "demo":
+                continue
+            whole = isinstance(face, int) or (isinstance(face, float) and face.is_integer())
+            if isinstance(face, bool) or not whole or not FACE_HOLES[0] <= face <= FACE_HOLES[1]:
+                raise ConfigError(f"schedule.bench_faces[{k}] = {face!r}: expected demo or a face of "
+                                  f"{FACE_HOLES[0]}..{FACE_HOLES[1]} holes")
 
 
 def _progress(enabled: bool):

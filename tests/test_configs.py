@@ -7,6 +7,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from pipeline.assembly.build import build_safety, hole_sampling
+from pipeline.benchmarks.moves import MoveBenchmarkSettings
 from pipeline.calibration.study import CalibrationSettings
 from pipeline.core.config import CONF_DIR, compose
 from pipeline.core.errors import ConfigError
@@ -16,10 +17,17 @@ from pipeline.deploy.package import ExportSettings
 from pipeline.derive_box import DeriveBoxSettings
 from pipeline.evaluate import EvalSettings
 from pipeline.evaluation.benchmarking import BenchmarkSettings
+from pipeline.execute import parse_execute
+from pipeline.execution.montecarlo import parse_execution
+from pipeline.field_boom import FieldBoomSettings
 from pipeline.generate import SetSize, TestGroups, supervised_sets
 from pipeline.learning.distillation import DistillSettings
 from pipeline.learning.models import ModelSettings
 from pipeline.learning.training import MethodSettings, TrainSettings
+from pipeline.plans.navigation import NavigationSettings
+from pipeline.quality import QualitySettings
+from pipeline.round.settings import parse_round
+from pipeline.schedule import ScheduleSettings
 from pipeline.solve import SolveSettings, check_batch
 from pipeline.solvers.hybrid import HybridSettings
 from pipeline.tracking.runs import TrackingSettings
@@ -42,6 +50,14 @@ NODES = {
     RuntimeSettings: "runtime",        # every stage's main
     SupervisedSet: "holes.sup",        # generate (less its box)
 }
+# the product stages' nodes (their code defaults need not be conf's: only conf's values are checked)
+PRODUCT_NODES = {
+    MoveBenchmarkSettings: "move_benchmark",  # move_benchmark
+    ScheduleSettings: "schedule",             # schedule
+    QualitySettings: "quality",               # quality
+    NavigationSettings: "navigation",         # solve, schedule, execute, move_benchmark
+    FieldBoomSettings: "field_boom",          # field_boom
+}
 
 
 def node(cfg, key: str):
@@ -51,8 +67,11 @@ def node(cfg, key: str):
 
 def check_all_groups(cfg) -> None:
     """What each stage parses first thing, before it reads data or opens a run."""
-    for cls, key in NODES.items():
+    for cls, key in {**NODES, **PRODUCT_NODES}.items():
         parse(cls, node(cfg, key), key)
+    parse_round(node(cfg, "round"), "round")  # schedule, execute
+    parse_execution(node(cfg, "execution"), "execution")
+    parse_execute(cfg)
     check_batch(parse(SolveSettings, node(cfg, "solve"), "solve"), parse(HybridSettings, node(cfg, "solver"), "solver"))
     TrackingSettings.from_config(cfg.tracking)
     for key in METHOD_NODES:
@@ -215,6 +234,20 @@ def test_every_settings_default_equals_its_conf_value(cls):
     ("runtime.threads=100000", r"runtime.threads = 100000: must be <= 256"),
     ("runtime.train_threads=1e6", r"runtime.train_threads = 1000000: must be <= 256"),
     ("runtime.checkpoint_every=1e12", r"runtime.checkpoint_every = 1000000000000: must be <= 10000000"),
+    ("move_benchmark.pairs=1e9", r"move_benchmark.pairs = 1000000000: must be <= 100000"),
+    ("move_benchmark.planner_iterations=1e12", r"planner_iterations = 1000000000000: must be <= 1000000"),
+    ("move_benchmark.distance_batch=1e9", r"move_benchmark.distance_batch = 1000000000: must be <= 65536"),
+    ("move_benchmark.planner_time_s=1e9", r"move_benchmark.planner_time_s = 1000000000.0: must be <= 3600"),
+    ("move_benchmark.seed=4294967295", r"move_benchmark.seed = 4294967295: must be <= 2147483647"),
+    ("schedule.replay_frames=1e9", r"schedule.replay_frames = 1000000000: must be <= 10000"),
+    ("schedule.bench_faces=[demo,1e6]", r"schedule.bench_faces\[1\] = 1000000.0: expected demo or a face of 20..1000"),
+    ("schedule.bench_faces=[demo,many]", r"schedule.bench_faces\[1\] = 'many': expected demo or a face of 20..1000"),
+    ("schedule.bench_seed=-1", r"schedule.bench_seed = -1: must be >= 0"),
+    ("quality.max_log_mb=1e9", r"quality.max_log_mb = 1000000000.0: must be <= 4096"),
+    ("field_boom.poses=1e9", r"field_boom.poses = 1000000000: must be <= 100000"),
+    ("round.postures=1e5", r"round.postures = 100000: must be <= 64"),
+    ("execution.draws=1e9", r"execution.draws = 1000000000: must be <= 10000"),
+    ("execute.replay_frames=1e9", r"execute.replay_frames = 1000000000: must be <= 10000"),
     ("tracking.busy_timeout_s=1e12", r"tracking.busy_timeout_s = 1000000000000.0: expected a number of seconds in "
                                      r"\[0, 86400\]"),
 ])

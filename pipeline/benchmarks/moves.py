@@ -42,6 +42,7 @@ from pipeline.solvers.base import HoleTargets
 from pipeline.solvers.hybrid import BoomObstacle, HybridSolver
 
 D = torch.float64
+OMPL_SEED_MAX = 2**31 - 1  # OMPL's seed is 32-bit (as round's detour_seed); bounds: conf/move_benchmark/default.yaml
 log = logging.getLogger(__name__)
 
 
@@ -49,16 +50,18 @@ log = logging.getLogger(__name__)
 class MoveBenchmarkSettings:
     """The ``move_benchmark`` node (conf/move_benchmark/default.yaml)."""
 
-    pairs: int = field(default=100, metadata=rule(ge=1))  # random hole pairs per boom (the issue asks 1000)
-    seed: int = field(default=0, metadata=rule(ge=0))
+    # random hole pairs per boom (the issue asks 1000)
+    pairs: int = field(default=100, metadata=rule(ge=1, le=100_000))
+    seed: int = field(default=0, metadata=rule(ge=0, le=OMPL_SEED_MAX))
     # OMPL's budget per move as counts (the same pairs give the same paths on any machine); the wall-time
     # budgets replace them only when set (interactive use: then results depend on the machine's load)
-    planner_iterations: int = field(default=5000, metadata=rule(ge=1))
-    simplify_steps: int = field(default=40, metadata=rule(ge=0))
-    planner_time_s: float | None = field(default=None, metadata=rule(gt=0))
-    simplify_s: float | None = field(default=None, metadata=rule(gt=0))
-    distance_batch: int = field(default=4096, metadata=rule(ge=1))  # configuration pairs per boom-boom call
-    distance_repeats: int = field(default=20, metadata=rule(ge=1))
+    planner_iterations: int = field(default=5000, metadata=rule(ge=1, le=1_000_000))
+    simplify_steps: int = field(default=40, metadata=rule(ge=0, le=10_000))
+    planner_time_s: float | None = field(default=None, metadata=rule(gt=0, le=3600))
+    simplify_s: float | None = field(default=None, metadata=rule(gt=0, le=3600))
+    # configuration pairs per boom-boom call
+    distance_batch: int = field(default=4096, metadata=rule(ge=1, le=65_536))
+    distance_repeats: int = field(default=20, metadata=rule(ge=1, le=10_000))
 
 
 def _ok_rows(reach: Reach, name: str) -> pd.DataFrame:
