@@ -160,6 +160,9 @@ def _cfg(**changes):
     (_cfg(joint_speeds=None), r"^motion\.joint_speeds = None: expected a mapping"),
     (_cfg(accel_time=0), r"^motion\.accel_time = 0\.0: must be > 0"),
     (_cfg(drilling={"rate_m_per_min": 0}), r"^motion\.drilling\.rate_m_per_min = 0\.0: must be > 0"),
+    # issue 55: durations have upper bounds (a hole's times are summed over the round)
+    (_cfg(accel_time=1e9), r"^motion\.accel_time = 1000000000\.0: must be <= 60"),
+    (_cfg(drilling={"collaring_s": 1e300}), r"^motion\.drilling\.collaring_s = 1e\+300: must be <= 3600"),
     (_cfg(jerk=1), r"^motion\.jerk: unknown setting"),
     (_cfg(boom="huang9"), r"^motion\.boom = 'huang9': these motion settings are for booms of kind 'huang9', not "
                           r"for boom 'jumbo8'"),

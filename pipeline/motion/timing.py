@@ -35,11 +35,15 @@ from pipeline.geometry.boom_config import reject_unknown
 from pipeline.geometry.kinematics import Boom
 
 MOTION_KEYS = {"boom", "joint_speeds", "accel_time", "drilling"}
+# Bounds of the durations (conf/motion/jumbo8.yaml): an hour's collaring or a minute to reach a joint's speed is no
+# boom; every hole of a round pays them
+MAX_COLLARING_S = 3600.0
+MAX_ACCEL_S = 60.0
 
 
 @dataclass(frozen=True)
 class DrillingSettings:
-    collaring_s: float = field(default=10.0, metadata=rule(ge=0))
+    collaring_s: float = field(default=10.0, metadata=rule(ge=0, le=MAX_COLLARING_S))
     rate_m_per_min: float = field(default=2.5, metadata=rule(gt=0))
     retract_m_per_s: float = field(default=1.0, metadata=rule(gt=0))
 
@@ -92,7 +96,7 @@ def motion_from_config(cfg: Mapping, boom: Boom, source: str = "motion") -> Moti
         raise ConfigError(f"{source}.joint_speeds must list every joint of boom '{boom.name}' "
                           f"{boom.joint_names}; missing {missing}, unknown {extra}")
     accel = coerce(cfg.get("accel_time"), "float", f"{source}.accel_time")
-    check_rule(accel, f"{source}.accel_time", gt=0)
+    check_rule(accel, f"{source}.accel_time", gt=0, le=MAX_ACCEL_S)
     v = []
     for j in boom.joints:
         where = f"{source}.joint_speeds.{j.name}"
