@@ -246,6 +246,7 @@ def test_every_settings_default_equals_its_conf_value(cls):
     ("quality.max_log_mb=1e9", r"quality.max_log_mb = 1000000000.0: must be <= 4096"),
     ("field_boom.poses=1e9", r"field_boom.poses = 1000000000: must be <= 100000"),
     ("round.postures=1e5", r"round.postures = 100000: must be <= 64"),
+    ("safety.points_per_capsule=100000", r"safety.points_per_capsule = 100000: at most 256"),
     ("execution.draws=1e9", r"execution.draws = 1000000000: must be <= 10000"),
     ("execute.replay_frames=1e9", r"execute.replay_frames = 1000000000: must be <= 10000"),
     ("tracking.busy_timeout_s=1e12", r"tracking.busy_timeout_s = 1000000000000.0: expected a number of seconds in "

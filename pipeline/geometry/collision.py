@@ -22,6 +22,7 @@ from pipeline.geometry.tunnel import SURFACES, Horseshoe
 SAFETY_KINDS = ("self", *SURFACES)
 # The candidate points of the exact capsule-tunnel check (see :meth:`SafetyModel._fractions`).
 EXACT_CANDIDATES = 6
+MAX_POINTS_PER_CAPSULE = 256  # safety.points_per_capsule (conf/safety/paper.yaml): 16 times the paper's 16
 
 
 def capsule_settings(points_per_capsule, exact_capsules) -> tuple[int, bool]:
@@ -30,6 +31,9 @@ def capsule_settings(points_per_capsule, exact_capsules) -> tuple[int, bool]:
         raise ConfigError(f"safety.points_per_capsule = {points_per_capsule!r}: expected an integer")
     if points_per_capsule < 2:
         raise ConfigError(f"safety.points_per_capsule = {points_per_capsule!r}: need at least 2")
+    if points_per_capsule > MAX_POINTS_PER_CAPSULE:  # every check of every configuration measures them all
+        raise ConfigError(f"safety.points_per_capsule = {points_per_capsule!r}: at most {MAX_POINTS_PER_CAPSULE} "
+                          "(each is measured in every clearance check of every configuration)")
     if not isinstance(exact_capsules, bool):
         raise ConfigError(f"safety.exact_capsules = {exact_capsules!r}: expected true or false")
     return points_per_capsule, exact_capsules
