@@ -17,18 +17,26 @@ from pipeline.assembly.build import load_boom
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import InputError
 from pipeline.core.io import write_csv, write_text
+from pipeline.core.settings import parse
 from pipeline.core.stage import run_stage
 from pipeline.data.hole_sets import read_hole_poses
 from pipeline.data.holes import joint_box
 from pipeline.data.tables import COLLAR_COLUMNS, TOE_COLUMNS, collar_toe_poses, read_table
 from pipeline.evaluation.markdown import markdown_table
-from pipeline.evaluation.paper_experiments import ga_experiments, paper_metrics, pso_experiments, rbf_experiment
+from pipeline.evaluation.paper_experiments import (
+    PapersSettings,
+    ga_experiments,
+    paper_metrics,
+    pso_experiments,
+    rbf_experiment,
+)
 from pipeline.solvers import check_entry
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
 
 def run(cfg: DictConfig) -> dict:
     papers, tracking = cfg.benchmark.papers, TrackingSettings.from_config(cfg.tracking)
+    parse(PapersSettings, OmegaConf.to_container(papers, resolve=True), "benchmark.papers")  # sizes before any work
     rbf_specs = {m: OmegaConf.to_container(cfg.benchmark.solvers[m], resolve=True) for m in papers.rbf.methods}
     for m, spec in rbf_specs.items():  # the entries' sizes, before any input is read
         check_entry(m, spec)

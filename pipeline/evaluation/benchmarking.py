@@ -24,6 +24,7 @@ from pipeline.core.settings import rule
 from pipeline.data.hole_sets import MAX_SET, MAX_TEST_GROUPS, read_hole_poses
 from pipeline.evaluation.markdown import markdown_table
 from pipeline.evaluation.metrics import solution_table, summarize
+from pipeline.evaluation.paper_experiments import PapersSettings
 from pipeline.evaluation.peer_timing import single_latencies, threads
 from pipeline.evaluation.plots import error_vs_time
 from pipeline.evaluation.status_reference import status_agreement
@@ -48,7 +49,7 @@ class BenchmarkSettings:
     holes: int = field(metadata=rule(ge=1, le=MAX_SET))  # per group
     methods: list[str]
     solvers: dict  # method -> its entry (kind and that solver's parameters; its sizes checked here)
-    papers: dict
+    papers: PapersSettings  # paper_baselines' experiments
     single: int = field(default=20, metadata=rule(ge=0, le=HARNESS_BOUNDS["single"][1]))  # holes solved alone, one
     # thread (a solver entry's own ``single`` overrides it: the rows whose tail is a target take 1 000)
     reference_ok_sample: int = field(default=200, metadata=rule(ge=0, le=100_000))  # hybrid statuses vs a slow search

@@ -12,13 +12,18 @@ from __future__ import annotations
 
 import logging
 import math
+from dataclasses import dataclass, field
 
 import pandas as pd
 import torch
 
 from pipeline.assembly.build import load_boom
+from pipeline.core.errors import ConfigError
+from pipeline.core.settings import SEED_MAX, rule
+from pipeline.data.hole_sets import MAX_TEST_GROUPS
 from pipeline.evaluation.paper_numbers import PAPER_002
 from pipeline.geometry.kinematics import Boom
+from pipeline.optim.swarm import MAX_ITERATIONS, MAX_POPULATION
 from pipeline.solvers.base import FrameTargets, HoleTargets, JointSpace, tool_transform
 from pipeline.solvers.ga import GAParams, GeneticIK
 from pipeline.solvers.nm import NMSolver
@@ -26,6 +31,47 @@ from pipeline.solvers.pso import ParticleSwarm, params_for
 from pipeline.solvers.rbf import RBFSolver
 
 log = logging.getLogger(__name__)
+
+
+# The ``benchmark.papers`` node (conf/benchmark/default.yaml states the bounds): parsed with the benchmark group and
+# by paper_baselines first thing; a swarm's run is population x iterations boom poses, each run one target
+@dataclass(frozen=True)
+class PaperPSOSettings:
+    booms: list[str] = field(metadata=rule(min_items=1, max_items=10))
+    runs: int = field(metadata=rule(ge=1, le=10_000))  # targets, one swarm each
+    iterations: int = field(metadata=rule(ge=1, le=MAX_ITERATIONS))
+    checkpoints: list[int] = field(metadata=rule(ge=0, le=MAX_ITERATIONS, max_items=100))
+    reach: list = field(metadata=rule(min_items=1, max_items=100))  # (position m, orientation rad) pairs
+    populations: list[int] = field(metadata=rule(ge=2, le=MAX_POPULATION, max_items=20))
+    population_boom: str
+    seed: int = field(metadata=rule(ge=0, le=SEED_MAX))
+
+    def __post_init__(self):
+        for k, it in enumerate(self.checkpoints):
+            if it > self.iterations:
+                raise ConfigError(f"benchmark.papers.pso.checkpoints[{k}] = {it}: beyond "
+                                  f"benchmark.papers.pso.iterations = {self.iterations}")
+
+
+@dataclass(frozen=True)
+class PaperGASettings:
+    boom: str
+    poses_deg: list = field(metadata=rule(min_items=1, max_items=100))  # joint vectors whose poses are targets
+    generations: int = field(metadata=rule(ge=1, le=MAX_ITERATIONS))
+    seed: int = field(metadata=rule(ge=0, le=SEED_MAX))
+
+
+@dataclass(frozen=True)
+class PaperRBFSettings:
+    groups: list[int] = field(metadata=rule(ge=1, le=MAX_TEST_GROUPS, min_items=1, max_items=MAX_TEST_GROUPS))
+    methods: list[str] = field(metadata=rule(min_items=1))  # benchmark.solvers entries
+
+
+@dataclass(frozen=True)
+class PapersSettings:
+    pso: PaperPSOSettings
+    ga: PaperGASettings
+    rbf: PaperRBFSettings
 
 
 def random_frames(boom_name: str, n: int, seed: int) -> tuple[FrameTargets, Boom]:
