@@ -39,9 +39,9 @@ import pandas as pd
 
 from pipeline.core.errors import InputError
 from pipeline.core.io import atomic_write
-from pipeline.plans.iredes import DR_NS, IR_NS, LABELS, MAX_TEXT, VERSION, add_element, add_point, scan_iredes
-from pipeline.plans.iredes_checksum import crc32_text, file_crc32, verify_checksum
-from pipeline.plans.iredes_frames import TMATRIX_TOL, apply_local_to_plan, axis_map, local_to_plan
+from pipeline.plans.iredes import DR_NS, IR_NS, LABELS, MAX_TEXT, VERSION, add_element, add_point, read_iredes_file
+from pipeline.plans.iredes_checksum import crc32_text, file_crc32
+from pipeline.plans.iredes_frames import TMATRIX_TOL, apply_local_to_plan, axis_map
 from pipeline.plans.model import COORDS, RowProblem
 
 STATUSES = ("Drilled", "Interrupted")  # Hstatus as the executor writes it; readers keep any other word
@@ -79,21 +79,9 @@ def read_quality_log(path: str | Path, *, axes: str = "xyz", unit: str = "m", or
     """Read a ``DRPQual`` (module docstring); ``axes``, ``unit``, ``origin``, ``checksum``, ``max_text`` and
     ``tmatrix_tol`` as for a drill plan (``solve.iredes``), so a log and its plan are read alike."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such quality log")
-    if path.stat().st_size > max_mb * 1e6:
+    if path.is_file() and path.stat().st_size > max_mb * 1e6:
         raise InputError(f"{path}: {path.stat().st_size / 1e6:.1f} MB, over {max_mb:g} MB for a quality log")
-    data = path.read_bytes()
-    if not data.strip():
-        raise InputError(f"{path}: empty file; expected an IREDES DRPQual")
-    scan = scan_iredes(data, str(path), max_text)
-    if scan.root != "DRPQual":
-        raise InputError(f"{path}: root element is {scan.root!r}, expected 'DRPQual' (an IREDES quality log)")
-    verdict = verify_checksum(data, str(path), checksum, scan.chksum)
-    del data
-    M = local_to_plan(scan.tmatrix, str(path), tmatrix_tol)
-    if not scan.holes:
-        raise InputError(f"{path}: no Hole elements in the DRPQual")
+    scan, verdict, M = read_iredes_file(path, "DRPQual", "quality log", checksum, max_text, tmatrix_tol)
     amap = axis_map(axes, unit, origin)
     ids = [f[0].strip() for f in scan.holes]
     text = pd.DataFrame([f[1] for f in scan.holes], columns=LABELS, dtype=object)

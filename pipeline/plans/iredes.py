@@ -288,6 +288,26 @@ def _is_number(text: str, value: float) -> bool:
         return False
 
 
+def read_iredes_file(path: Path, root: str, what: str, checksum: str, max_text: int, tmatrix_tol: float):
+    """An IREDES file's holes as streamed (:func:`scan_iredes`), its checksum's verdict and its TMatrix (None
+    without one), every check a drill plan and a quality log share: the file there and not empty, the root
+    ``root``, the checksum by ``checksum``'s policy, a rigid TMatrix, at least one ``Hole``."""
+    if not path.is_file():
+        raise InputError(f"{path}: no such {what}")
+    data = path.read_bytes()
+    if not data.strip():
+        raise InputError(f"{path}: empty file; expected an IREDES {root}")
+    scan = scan_iredes(data, str(path), max_text)
+    if scan.root != root:
+        raise InputError(f"{path}: root element is {scan.root!r}, expected {root!r} (an IREDES {what})")
+    verdict = verify_checksum(data, str(path), checksum, scan.chksum)
+    del data
+    M = local_to_plan(scan.tmatrix, str(path), tmatrix_tol)
+    if not scan.holes:
+        raise InputError(f"{path}: no Hole elements in the {root}")
+    return scan, verdict, M
+
+
 def read_iredes_plan(
     path: str | Path,
     *,
@@ -311,19 +331,7 @@ def read_iredes_plan(
     """
     path = Path(path)
     amap = axis_map(axes, unit, origin)
-    if not path.is_file():
-        raise InputError(f"{path}: no such drill plan")
-    data = path.read_bytes()
-    if not data.strip():
-        raise InputError(f"{path}: empty file; expected an IREDES DRPPlan")
-    scan = scan_iredes(data, str(path), max_text)
-    if scan.root != "DRPPlan":
-        raise InputError(f"{path}: root element is {scan.root!r}, expected 'DRPPlan' (an IREDES drill plan)")
-    verdict = verify_checksum(data, str(path), checksum, scan.chksum)
-    del data
-    M = local_to_plan(scan.tmatrix, str(path), tmatrix_tol)
-    if not scan.holes:
-        raise InputError(f"{path}: no Hole elements in the DRPPlan")
+    scan, verdict, M = read_iredes_file(path, "DRPPlan", "drill plan", checksum, max_text, tmatrix_tol)
     fields = scan.holes
     coord_text = pd.DataFrame([f[1] for f in fields], columns=LABELS, dtype=object)
     extras = pd.DataFrame([f[2] for f in fields], dtype=object).fillna("")
