@@ -25,14 +25,16 @@ EXACT_CANDIDATES = 6
 MAX_POINTS_PER_CAPSULE = 256  # safety.points_per_capsule (conf/safety/paper.yaml): 16 times the paper's 16
 
 
-def capsule_settings(points_per_capsule, exact_capsules) -> tuple[int, bool]:
-    """``safety.points_per_capsule`` (a whole number >= 2) and ``safety.exact_capsules`` (a boolean), validated."""
+def capsule_settings(points_per_capsule, exact_capsules, max_points: int | None = MAX_POINTS_PER_CAPSULE
+                     ) -> tuple[int, bool]:
+    """``safety.points_per_capsule`` (a whole number >= 2, at most ``max_points`` unless None) and
+    ``safety.exact_capsules`` (a boolean), validated."""
     if isinstance(points_per_capsule, bool) or not isinstance(points_per_capsule, int):
         raise ConfigError(f"safety.points_per_capsule = {points_per_capsule!r}: expected an integer")
     if points_per_capsule < 2:
         raise ConfigError(f"safety.points_per_capsule = {points_per_capsule!r}: need at least 2")
-    if points_per_capsule > MAX_POINTS_PER_CAPSULE:  # every check of every configuration measures them all
-        raise ConfigError(f"safety.points_per_capsule = {points_per_capsule!r}: at most {MAX_POINTS_PER_CAPSULE} "
+    if max_points is not None and points_per_capsule > max_points:  # every check of every configuration measures them all
+        raise ConfigError(f"safety.points_per_capsule = {points_per_capsule!r}: at most {max_points} "
                           "(each is measured in every clearance check of every configuration)")
     if not isinstance(exact_capsules, bool):
         raise ConfigError(f"safety.exact_capsules = {exact_capsules!r}: expected true or false")
@@ -114,7 +116,9 @@ class SafetyModel:
 
     def __init__(self, boom: Boom, tunnel: Horseshoe, distances: SafetyDistances, points_per_capsule: int = 16,
                  exact: bool = True):
-        points_per_capsule, exact = capsule_settings(points_per_capsule, exact)
+        # The cap is the config's (build.safety_settings); a reference model built in code, such as a
+        # dense sampling that a test measures the exact check against, may be denser.
+        points_per_capsule, exact = capsule_settings(points_per_capsule, exact, max_points=None)
         if not boom.bodies:
             raise ConfigError(f"boom '{boom.name}' defines no collision bodies; the safety model needs them")
         self.boom, self.tunnel, self.distances = boom, tunnel, distances
