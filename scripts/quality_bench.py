@@ -46,6 +46,8 @@ def files(folder: Path, n: int) -> tuple[Path, Path]:
 
 def main(argv: list[str]) -> None:
     n = int(argv[0]) if argv else 10_000
+    # The store for the benchmark's own run, resolved before the stage's runs point MLflow at the temporary one.
+    tracking = TrackingSettings.from_config(compose(argv[1:]).tracking)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
@@ -68,7 +70,7 @@ def main(argv: list[str]) -> None:
     med = {k: statistics.median(table[k]) for k in table}
     print(f"{n} holes: the quality stage in {med['stage_s']:.2f} s (median of 3; reading the plan "
           f"{med['read_plan_s']:.2f} s, the log {med['read_log_s']:.2f} s, the deviations {med['deviations_s']:.3f} s)")
-    with stage_run(TrackingSettings.from_config(compose(argv[1:]).tracking), "quality-benchmark",
+    with stage_run(tracking, "quality-benchmark",
                    {"stage": "script", "mode": "benchmark"}) as run:
         run.log_params({"holes": n})
         run.log_metrics({f"{k}_median": v for k, v in med.items()})

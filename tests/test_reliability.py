@@ -435,7 +435,8 @@ def test_a_store_locked_by_another_process_gets_a_named_wait_then_a_clear_error(
     runs = MlflowClient(settings.uri).search_runs(
         [MlflowClient(settings.uri).get_experiment_by_name("boom-ik").experiment_id])
     assert sorted(r.info.run_name for r in runs) == ["first", "third"]
-    with pytest.raises(ConfigError, match=r"tracking.busy_timeout_s = -1: expected a number of seconds in \[0, 86400\]"):
+    with pytest.raises(ConfigError,
+                       match=r"tracking.busy_timeout_s = -1: expected a number of seconds in \[0, 86400\]"):
         TrackingSettings.from_config({**node, "busy_timeout_s": -1})
 
 

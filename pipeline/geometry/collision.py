@@ -33,7 +33,7 @@ def capsule_settings(points_per_capsule, exact_capsules, max_points: int | None 
         raise ConfigError(f"safety.points_per_capsule = {points_per_capsule!r}: expected an integer")
     if points_per_capsule < 2:
         raise ConfigError(f"safety.points_per_capsule = {points_per_capsule!r}: need at least 2")
-    if max_points is not None and points_per_capsule > max_points:  # every check of every configuration measures them all
+    if max_points is not None and points_per_capsule > max_points:  # every check measures them all
         raise ConfigError(f"safety.points_per_capsule = {points_per_capsule!r}: at most {max_points} "
                           "(each is measured in every clearance check of every configuration)")
     if not isinstance(exact_capsules, bool):
