@@ -58,7 +58,7 @@ def render(metrics: dict, collisions: pd.DataFrame, figures: list[str], loop: di
     lines = [
         "# IK study report",
         "",
-        "Measured on the five test groups (1 000 holes each unless configured otherwise), next to paper 000.",
+        "Measured on the five test groups (1 000 holes each unless configured otherwise), next to Wu et al. 2024.",
         "",
     ]
     rows = []
@@ -73,8 +73,8 @@ def render(metrics: dict, collisions: pd.DataFrame, figures: list[str], loop: di
     if "sikm" in metrics and "cuikm" in metrics:  # paper 000's headline: CUIKM's error reduction over SIKM
         gain = 1 - metrics["cuikm"]["hole_mm_mean"] / metrics["sikm"]["hole_mm_mean"]
         lines += ["", f"CUIKM's mean hole-seeking error is {100 * gain:.2f} % below SIKM's "
-                      f"(paper 000: {100 * PAPER000_CUIKM_GAIN:.2f} %)."]
-    lines += ["", "## Collisions per test group (paper 000 Table 3 layout; paper's counts in brackets)", ""]
+                      f"(Wu et al. 2024: {100 * PAPER000_CUIKM_GAIN:.2f} %)."]
+    lines += ["", "## Collisions per test group (Wu et al. 2024 Table 3 layout; the paper's counts in brackets)", ""]
     rows = []
     for _, row in collisions.iterrows():
         paper = PAPER000_TABLE3.get(row["method"])

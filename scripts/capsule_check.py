@@ -1,6 +1,6 @@
-"""One-off measurement (issue 26, docs/design.md "Distances to surfaces"): the tunnel check of a capsule,
-with the exact check's candidate points (``safety.exact_capsules: true``) and by evenly spaced samples
-alone, on the same configurations.
+"""Measurement (docs/benchmarks.md, "The safety model's capsule check"): the tunnel check of a capsule,
+with the exact check's candidate points (``safety.exact_capsules: true``, docs/design.md "Distances to
+surfaces") and by evenly spaced samples alone, on the same configurations.
 
     python scripts/capsule_check.py [configurations]     # default 20 000
 

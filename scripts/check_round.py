@@ -7,7 +7,7 @@
 
 Reads ``<stem>_trajectory.csv`` with its siblings ``<stem>_round.csv`` and ``<stem>_round.json`` and the
 plan the JSON names, and ``<stem>_actions.csv`` / ``<stem>_interlocks.csv`` when there (the executed
-round, spec section 8: its robustness certified exactly for any drilling durations, and the draws;
+round, docs/reference.md section 8: its robustness certified exactly for any drilling durations, and the draws;
 ``--execute N`` adds N random draws and the fixed ones, ``--draws F`` a draws file's; ``<stem>_zones.csv``
 or ``--zones F``, zones the booms enter one at a time); ``--realised`` checks an executed round's set
 (``<stem>_executed_*``); the settings are composed from ``conf/`` with the stage's own overrides

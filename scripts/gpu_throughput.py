@@ -1,4 +1,4 @@
-"""Benchmark (issue 30's GPU part, docs/benchmarks.md "The hybrid on a GPU"): the hybrid solver on one
+"""Benchmark (docs/benchmarks.md, "The hybrid on a GPU"): the hybrid solver on one
 device at 10^4, 10^5 and 10^6 holes, and beside it, in the same run, the torch and compiled hybrids on
 that machine's CPU.
 
@@ -17,7 +17,7 @@ hydra-core and, for ``--cpu-baseline``, numba; not MLflow. Back on the project's
 
 logs a table as one MLflow run (``device-throughput``, the composed experiment).
 
-On a GPU machine of the ``device`` tool, with the project's pure-Python settings packages carried as
+On a GPU machine without network access, with the project's pure-Python settings packages copied over as
 wheels (docs/benchmarks.md says how), the same command runs there: its ``python3`` has its own CUDA torch.
 """
 

@@ -1,4 +1,4 @@
-"""The joint CP-SAT model against today's planner at equal wall time (issue 28; docs/benchmarks.md, "Joint
+"""The joint CP-SAT model against the round planner at equal wall time (docs/benchmarks.md, "Joint
 CP-SAT model against the routing"):
 
     python scripts/joint_vs_routing.py [--faces demo 50] [--factors 1 2] [--out data/benchmark] [overrides ...]

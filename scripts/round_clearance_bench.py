@@ -1,4 +1,4 @@
-"""Benchmark (issue 30, docs/benchmarks.md "The round's clearances, compiled"): the rig's clearances
+"""Benchmark (docs/benchmarks.md "The round's clearances, compiled"): the rig's clearances
 through the numba kernels (pipeline/geometry/compiled_rig.py) against the torch code, side by side
 in one run on one torch thread.
 

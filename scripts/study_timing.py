@@ -1,4 +1,4 @@
-"""Run the study with ``dvc repro`` and time each stage (issue 30: the per-stage table).
+"""Run the study with ``dvc repro`` and time each stage (docs/benchmarks.md, "The study, stage by stage").
 
     python scripts/study_timing.py --out logs/study_timing.json            # the whole study
     python scripts/study_timing.py --out logs/t.json -- -f -s benchmark    # arguments after -- go to dvc repro

@@ -1,4 +1,4 @@
-"""One-off timing (issue 21, docs/benchmarks.md "Peers and the compiled hybrid"): the compiled hybrid,
+"""Timing (docs/benchmarks.md "Peers and the compiled hybrid"): the compiled hybrid,
 the torch hybrid, Robotics Toolbox ik_LM and Pinocchio CLIK on the same holes drawn like test group 1,
 every answer judged by the project's safety model; then where the compiled batch's time goes.
 

@@ -5,17 +5,18 @@ conflict), and the real twin rig with jumbo8 joint solutions made by forward kin
 where those joints put the drill end, so no IK is needed), checked with the real clearances.
 """
 
+import importlib.util
 import math
 
 import numpy as np
 import pytest
 import torch
+import yaml
 from fk_rounds import boom_joints
 
 from pipeline.assembly.rig import load_rig
-from pipeline.core.config import load_group_file
+from pipeline.core.config import PROJECT_ROOT, load_group_file
 from pipeline.core.errors import ConfigError
-from pipeline.geometry.boom_pair import BoomPair
 from pipeline.motion.checks import lever_arms
 from pipeline.motion.timing import motion_from_config, profile
 from pipeline.round.baselines import naive_routes, nearest_routes, side_allocation
@@ -292,26 +293,54 @@ def _interp(traj, boom, names, t):
     return np.stack([np.interp(t, rows["t"], rows[n]) for n in names], -1)
 
 
-def test_independent_checker_no_boom_boom_violation(face, twin, jumbo8, motion):
-    """Dense linear interpolation of the trajectory table (5 ms), frames from the boom's own FK plus
-    each base (not the rig's mounting code), distances from BoomPair directly: all >= d_boom."""
+def _round_checker():
+    """The independent round checker's own package (scripts/round_check/, which imports nothing of
+    ``pipeline``), loaded from its script as tests/test_check_round.py loads it."""
+    spec = importlib.util.spec_from_file_location("check_round_script", PROJECT_ROOT / "scripts" / "check_round.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def boom_boom_distances(checker, boom_yaml: dict, rig_yaml: dict, traj, t: np.ndarray) -> np.ndarray:
+    """``(len(t),)`` least capsule-capsule distance between the rig's two booms at instants ``t``: the
+    trajectory rows interpolated linearly, the checker's numpy FK of the boom YAML, each boom's base from
+    the rig YAML added (no rotation), the checker's clamped segment-segment distance less both radii.
+    Nothing of the planner's geometry (kinematics, rig mounting, BoomPair) is used."""
+    model = checker.boom.BoomModel(boom_yaml, "conf/boom/jumbo8.yaml")
+    points = []
+    for spec in rig_yaml["booms"]:
+        q = _interp(traj, spec["name"], model.joint_names, t)
+        points.append(model.body_points(model.frames(q)) + np.asarray(spec["base"], float))  # (N, bodies, 2, 3)
+    radii = np.array([b.radius for b in model.bodies])
+    least = np.full(len(t), np.inf)
+    for i in range(len(model.bodies)):
+        for j in range(len(model.bodies)):
+            a, b = points[0][:, i], points[1][:, j]
+            gap = checker.distance.segment_distance(a[:, 0], a[:, 1], b[:, 0], b[:, 1]) - radii[i] - radii[j]
+            least = np.minimum(least, gap)
+    return least
+
+
+def test_boom_boom_distance_by_the_independent_checkers_geometry_keeps_d_boom(face, motion):
+    """The planned round's trajectory table, interpolated linearly every 5 ms, judged by geometry that
+    shares no code with the planner: the forward kinematics and segment distance of the independent
+    checker (scripts/round_check/) on conf/boom/jumbo8.yaml, the bases and d_boom read from
+    conf/rig/twin.yaml. Every instant keeps d_boom, and the middle pair comes close enough that a round
+    that did not keep the booms apart would fail."""
     inst, oracle, plan, _ = face
-    names = motion.joints.names
-    traj = trajectory_table(inst, plan.timeline, oracle, names)
+    traj = trajectory_table(inst, plan.timeline, oracle, motion.joints.names)
+    boom_yaml = yaml.safe_load((PROJECT_ROOT / "conf/boom/jumbo8.yaml").read_text())
+    rig_yaml = yaml.safe_load((PROJECT_ROOT / "conf/rig/twin.yaml").read_text())
+    assert [b["name"] for b in rig_yaml["booms"]] == list(inst.booms)
+    d_boom = float(rig_yaml["d_boom"])
     t = np.arange(0.0, plan.timeline.makespan + 0.005, 0.005)
-    pair = BoomPair(jumbo8, jumbo8, 0.3)
-    least = math.inf
-    with torch.inference_mode():
-        frames = []
-        for b, name in enumerate(inst.booms):
-            f = jumbo8.frames(torch.as_tensor(_interp(traj, name, names, t)))
-            f[..., :3, 3] += torch.tensor(twin.booms[b].base, dtype=D)
-            frames.append(f)
-        for s in range(0, len(t), 20000):
-            sl = slice(s, s + 20000)
-            least = min(least, float(pair.distances(frames[0][sl], frames[1][sl]).amin()))
-    assert least >= 0.3, f"boom-boom distance {least:.4f} m < d_boom"
-    assert least < 0.3 + 0.5  # the middle pair brings the booms close: the check is not vacuous
+    checker = _round_checker()
+    least = np.concatenate([boom_boom_distances(checker, boom_yaml, rig_yaml, traj, t[s:s + 20000])
+                            for s in range(0, len(t), 20000)])
+    k = int(np.argmin(least))
+    assert least[k] >= d_boom, f"boom-boom distance {least[k]:.4f} m < d_boom {d_boom} m at t = {t[k]:.3f} s"
+    assert least[k] < d_boom + 0.5  # the middle pair brings the booms close: the check is not vacuous
 
 
 def test_trajectory_rows_respect_joint_speeds_and_the_1mm_rule(face, motion, jumbo8, twin):

@@ -102,7 +102,7 @@ def pso_experiments(cfg) -> tuple[pd.DataFrame, pd.DataFrame]:
                 row[f"reached_{key}"] = float(ok.double().mean())
                 row[f"iters_{key}"] = float(first[ok].double().mean()) if ok.any() else math.nan
             rows.append(row)
-            log.info("paper 002 %s %s: %s", boom_name, variant, {k: round(v, 4) for k, v in row.items()
+            log.info("Huang et al. %s %s: %s", boom_name, variant, {k: round(v, 4) for k, v in row.items()
                                                                   if isinstance(v, float)})
     pop_rows = []
     targets, boom = random_frames(cfg.population_boom, int(cfg.runs), int(cfg.seed))

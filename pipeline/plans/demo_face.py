@@ -248,7 +248,8 @@ def demo_face(
     if tunnel != safety.tunnel:
         raise ConfigError(f"demo face: tunnel {tunnel} differs from the safety model's {safety.tunnel}")
     if not (6.0 <= x_face <= 7.0):
-        raise ConfigError(f"demo face: x_face = {x_face!r}: expected a face position in [6, 7] m (spec sect. 3)")
+        raise ConfigError(f"demo face: x_face = {x_face!r}: expected a face position in [6, 7] m "
+                          "(docs/reference.md, section 3)")
     lengths = {"depth": depth, "stoping_spacing": stoping_spacing, "burden": burden, "min_gap": min_gap,
                "contour_spacing": contour_spacing, "lifter_spacing": lifter_spacing, "relief_gap": relief_gap}
     for key, v in lengths.items():
