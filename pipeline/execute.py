@@ -40,7 +40,6 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 
-import hydra
 import numpy as np
 import pandas as pd
 from omegaconf import DictConfig
@@ -51,7 +50,7 @@ from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.core.io import file_md5, require_writable, save_figure, write_csv, write_text
 from pipeline.core.settings import coerce, parse, rule
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.execution.actions import (
     actions_from_table,
     actions_table,
@@ -613,7 +612,7 @@ def _report(out: dict, timings: dict, files, settings: ExecuteSettings) -> None:
         raise SystemExit(f"execute.strict: {'; '.join(problems)} (see {files['json']})")
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, lambda c: run_execute(c, _overrides()), threads="threads")
 

@@ -17,14 +17,13 @@ from __future__ import annotations
 import logging
 from dataclasses import asdict, dataclass, field
 
-import hydra
 from omegaconf import DictConfig
 
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import require_writable
 from pipeline.core.settings import coerce, parse, rule
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.evaluation.plots import deviation_figure
 from pipeline.plans.as_drilled import deviations, face_coordinates
 from pipeline.plans.drpqual import read_quality_log
@@ -79,7 +78,7 @@ def run(cfg: DictConfig) -> dict:
     return summary
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, run, threads=None)
 

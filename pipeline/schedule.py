@@ -39,7 +39,6 @@ from __future__ import annotations
 import logging
 from dataclasses import asdict, dataclass, field
 
-import hydra
 import numpy as np
 import pandas as pd
 from omegaconf import DictConfig
@@ -51,7 +50,7 @@ from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import file_md5, require_writable, save_figure, write_csv, write_text
 from pipeline.core.settings import SEED_MAX, RuntimeSettings, coerce, parse, rule
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.data.holes import joint_box
 from pipeline.execution.montecarlo import parse_execution
 from pipeline.execution.robust import robust_finish
@@ -362,7 +361,7 @@ def with_invalid_rows(table: pd.DataFrame, plan) -> pd.DataFrame:
     return out
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, run, threads="threads")
 

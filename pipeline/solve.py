@@ -29,7 +29,6 @@ from __future__ import annotations
 import logging
 from dataclasses import asdict, dataclass, field
 
-import hydra
 import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
@@ -41,7 +40,7 @@ from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import require_writable
 from pipeline.core.settings import coerce, parse, rule
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.data.holes import joint_box
 from pipeline.evaluation.plots import solution_figure
 from pipeline.learning.network_source import load_network
@@ -244,7 +243,7 @@ def boom_views(table, q: torch.Tensor, safety, limit: int) -> list[dict]:
     return views
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, run, threads="threads")
 
