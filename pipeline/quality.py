@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass, field
 from omegaconf import DictConfig
 
 from pipeline.core.config import as_dict, project_path
-from pipeline.core.errors import ConfigError
+from pipeline.core.errors import ConfigError, StrictCheckFailed
 from pipeline.core.io import require_writable
 from pipeline.core.settings import coerce, parse, rule
 from pipeline.core.stage import run_stage, stage_main
@@ -73,8 +73,8 @@ def run(cfg: DictConfig) -> dict:
              plan_path.name, summary["within"], summary["holes_planned"], summary["collar_dev_m_mean"] or 0.0,
              summary["collar_dev_m_p95"] or 0.0, len(summary["missing_from_log"]), paths.csv)
     if strict and summary["within"] != summary["holes_planned"]:
-        raise SystemExit(f"strict: {summary['holes_planned'] - summary['within']} of {summary['holes_planned']} "
-                         f"holes not drilled within tolerance (see {paths.csv})")
+        raise StrictCheckFailed(f"strict: {summary['holes_planned'] - summary['within']} of "
+                                f"{summary['holes_planned']} holes not drilled within tolerance (see {paths.csv})")
     return summary
 
 
