@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import platform
 
-import hydra
 import pandas as pd
 import torch
 from omegaconf import DictConfig, OmegaConf
@@ -22,7 +21,7 @@ from omegaconf import DictConfig, OmegaConf
 from pipeline.assembly.build import build_safety
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.settings import parse
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.data.holes import joint_box
 from pipeline.evaluation.benchmarking import (
     COLUMNS,
@@ -62,7 +61,7 @@ def run(cfg: DictConfig) -> pd.DataFrame:
     return df
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, run, threads="threads")
 

@@ -9,14 +9,13 @@ figure, the true and identified models and the identifiability report, and logs 
 
 from __future__ import annotations
 
-import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from pipeline.calibration.study import CalibrationSettings, face_holes, fit_file, residual_errors, run_study
 from pipeline.core.config import project_path
 from pipeline.core.errors import InputError
 from pipeline.core.settings import parse
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
 __all__ = ["face_holes", "residual_errors", "run"]  # the study's helpers, as tests import them from here
@@ -35,7 +34,7 @@ def run(cfg: DictConfig):
         return fit_file(cfg, settings, mlrun) if fitting else run_study(cfg, settings, mlrun)
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, run, threads="calibrate_threads")  # one thread: see conf/runtime/
 

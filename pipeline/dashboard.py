@@ -12,16 +12,15 @@ A port another process listens on (another MLflow UI, on another store) is refus
 
 from __future__ import annotations
 
-import hydra
 from omegaconf import DictConfig
 
 from pipeline.core.signals import terminate_as_interrupt
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.tracking import dashboard
 from pipeline.tracking.runs import TrackingSettings
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, serve, threads=None)
 

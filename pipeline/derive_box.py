@@ -12,7 +12,6 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 
-import hydra
 import yaml
 from omegaconf import DictConfig
 
@@ -20,7 +19,7 @@ from pipeline.assembly.build import build_safety, hole_sampling
 from pipeline.core.config import CONF_DIR
 from pipeline.core.io import write_text
 from pipeline.core.settings import SEED_MAX, parse, rule
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.learning.supervised_set import derive_working_box
 from pipeline.solvers.labels import local_search
 
@@ -54,7 +53,7 @@ def run(cfg: DictConfig) -> dict:
     return {"box": box, **stats}
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, run, threads="threads")
 

@@ -19,14 +19,13 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
-import hydra
 from omegaconf import DictConfig
 
 from pipeline.assembly.build import build_safety, hole_sampling
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import InputError
 from pipeline.core.io import publish, publish_lock, require_writable, write_json
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.data.holes import sample_holes
 from pipeline.learning.distillation import DistillSettings, distil, imitation_metrics
 from pipeline.learning.models import load_checkpoint, save_checkpoint
@@ -91,7 +90,7 @@ def _refuse_to_replace_another_network(path: Path) -> None:
                          f"the student would replace it: choose another distill.name")
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, run, threads="train_threads")
 

@@ -13,7 +13,6 @@ import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import hydra
 import pandas as pd
 from omegaconf import DictConfig
 
@@ -21,7 +20,7 @@ from pipeline.assembly.build import build_safety
 from pipeline.core.config import project_path
 from pipeline.core.io import save_figure, write_csv, write_json, write_parquet
 from pipeline.core.settings import parse, rule
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.data.hole_sets import read_test_groups
 from pipeline.evaluation.metrics import MethodEvaluation, collision_table, evaluate_network, summary_frame
 from pipeline.evaluation.plots import face_projection, method_comparison, training_curves
@@ -88,7 +87,7 @@ def write_results(results: dict[str, MethodEvaluation], groups, safety, out: Pat
     return figures
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, run, threads=None)  # torch's default threads
 

@@ -23,8 +23,9 @@ and
    draws (``--draws``), and the realised set (``--realised``); their verdicts go into the JSON. For an
    IREDES plan both get the holes as read, as CSV (``<stem>_executed_plan.csv``, in the set). A check
    that cannot judge the set stops the stage (exit 2 for the checker's 2, else 3) and nothing is
-   published; so does a signal (exit 128 + signum, the previous set intact). Under ``execute.strict`` a
-   failed check, a deadlock or a hand-on round that cannot be made robust exits 1 (after writing the set).
+   published; so does a signal (exit 128 + signum, the previous set intact), and so does a realised round
+   that deadlocks (exit 3). Under ``execute.strict`` a failed check, draws that deadlock or a hand-on round
+   that cannot be made robust exit 1 (after writing the set). The codes: :mod:`pipeline.core.exit_codes`.
 
 Re-planning seconds and the checks' seconds are MLflow metrics (``timing.*``), not in the JSON.
 """
@@ -40,7 +41,6 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 
-import hydra
 import numpy as np
 import pandas as pd
 from omegaconf import DictConfig
@@ -48,10 +48,11 @@ from omegaconf import DictConfig
 from pipeline.assembly.rig import composed_rig, model_files, rig_record, true_rig_booms
 from pipeline.calibration.model_file import model_setting
 from pipeline.core.config import as_dict, project_path
-from pipeline.core.errors import ConfigError, InputError
+from pipeline.core.errors import ConfigError, Deadlock, InputError, JobFailed, StrictCheckFailed
+from pipeline.core.exit_codes import ExitCode
 from pipeline.core.io import file_md5, require_writable, save_figure, write_csv, write_text
 from pipeline.core.settings import coerce, parse, rule
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.execution.actions import (
     actions_from_table,
     actions_table,
@@ -453,7 +454,8 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
                 out["handed_on"] = {**io.report, "dropped_precedence": [[ids[i], ids[j]] for i, j in
                                                                         io.handed.dropped_precedence]}
         if ex.deadlock is not None:
-            raise ConfigError("the round deadlocks: " + " -> ".join(r_acts.name(k) for k in ex.deadlock))
+            raise Deadlock(f"execute ({label}): the round deadlocks: "
+                           + " -> ".join(r_acts.name(k) for k in ex.deadlock) + "; nothing written")
         start, end = ex.start[0], ex.end[0]
         realised_traj = retimed(r_acts, r_rows, start, end, names)
         r_table = executed_round_table(r_acts, start, end, r_rows, planned_table, names, interrupted)
@@ -522,31 +524,29 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
     return out
 
 
-EXIT_CHECKER_FAILED = 3  # the checker crashed (its exit 3, a signal, ...): no verdict, nothing published
+class CheckerFailed(JobFailed):
+    """The independent checker gave no verdict (its own failure, exit 3, or a signal): nothing published (exit 3)."""
 
 
 def _checks_ran(checks: dict) -> None:
-    """Every check judged the set (exit 0: clean, 1: violations); else the stage stops before publishing:
-    the checker's exit 2 (an input it cannot judge) as an :class:`InputError` (exit 2), any other exit (its
-    own failure, exit 3, or a signal) as exit :data:`EXIT_CHECKER_FAILED`. A signal this process received
-    meanwhile (Ctrl-C reaches the checker too) wins: exit 128 + signum."""
+    """Every check judged the set (the checker's exit 0: clean, 1: violations); else the stage stops before
+    publishing: the checker's exit 2 (an input it cannot judge) as an :class:`InputError` (exit 2), any other
+    exit (its own failure, exit 3, or a signal) as :class:`CheckerFailed` (exit 3). A signal this process
+    received meanwhile (Ctrl-C reaches the checker too) wins: exit 128 + signum."""
     from pipeline.core.signals import raise_if_terminated
 
     raise_if_terminated()
     for k, c in checks.items():
-        if c["exit"] in (0, 1):
+        if c["exit"] in (ExitCode.DONE, ExitCode.CHECK_FAILED):
             continue
         what = {"planned_draws": "planned set on the draws", "realised": "realised set"}.get(k, k)
         said = c.get("stderr", "").strip().splitlines()
         last = said[-1] if said else "(nothing on stderr)"
-        if c["exit"] == 2:
+        if c["exit"] == ExitCode.BAD_INPUT:
             raise InputError(f"the independent check of the {what} could not judge it (checker exit 2: {last}); "
                              "nothing published")
-        log.error("execute: the independent check of the %s failed (checker exit %d: %s); nothing published", what,
-                  c["exit"], last)
-        print(f"error: the independent check of the {what} failed (checker exit {c['exit']}); nothing published",
-              file=sys.stderr)
-        raise SystemExit(EXIT_CHECKER_FAILED)
+        raise CheckerFailed(f"the independent check of the {what} failed (checker exit {c['exit']}: {last}); "
+                            "nothing published")
 
 
 def _check_joints(oracle, st, rows, acts, ids) -> None:
@@ -610,10 +610,10 @@ def _report(out: dict, timings: dict, files, settings: ExecuteSettings) -> None:
     for p in problems:
         log.warning("execute: %s", p)
     if problems and settings.strict:
-        raise SystemExit(f"execute.strict: {'; '.join(problems)} (see {files['json']})")
+        raise StrictCheckFailed(f"execute.strict: {'; '.join(problems)} (see {files['json']})")
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, lambda c: run_execute(c, _overrides()), threads="threads")
 

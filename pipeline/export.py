@@ -16,14 +16,13 @@ from __future__ import annotations
 
 import logging
 
-import hydra
 import torch
 from omegaconf import DictConfig, OmegaConf
 
 from pipeline.assembly.build import load_boom
 from pipeline.core.config import project_path
 from pipeline.core.settings import parse
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.deploy.package import ExportSettings, check_poses, export_method
 from pipeline.learning.network_source import load_network
 from pipeline.tracking.runs import TrackingSettings, stage_run
@@ -58,7 +57,7 @@ def run(cfg: DictConfig) -> dict[str, dict]:
     return manifests
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, run, threads=None)  # torch's default threads
 

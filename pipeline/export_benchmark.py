@@ -14,7 +14,6 @@ import logging
 import os
 import re
 
-import hydra
 import pandas as pd
 import torch
 from omegaconf import DictConfig, OmegaConf
@@ -22,7 +21,7 @@ from omegaconf import DictConfig, OmegaConf
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.io import write_csv, write_text
 from pipeline.core.settings import parse
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.deploy.latency import COLUMNS, latency_markdown, machine, measure
 from pipeline.deploy.package import ExportSettings
 from pipeline.tracking.runs import TrackingSettings, stage_run
@@ -57,7 +56,7 @@ def run(cfg: DictConfig) -> pd.DataFrame:
     return table
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, run, threads=None)  # torch's default threads
 

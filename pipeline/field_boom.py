@@ -15,7 +15,6 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 
-import hydra
 import torch
 from omegaconf import DictConfig
 
@@ -26,7 +25,7 @@ from pipeline.calibration.model_file import save_model
 from pipeline.core.config import as_dict, load_group_file, project_path
 from pipeline.core.io import require_writable
 from pipeline.core.settings import parse, rule
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +64,7 @@ def run(cfg: DictConfig) -> dict:
     return out
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, run, threads=None)
 

@@ -15,7 +15,6 @@ import logging
 import time
 from dataclasses import dataclass, field
 
-import hydra
 from omegaconf import DictConfig
 
 from pipeline.assembly.build import build_safety, hole_sampling
@@ -23,7 +22,7 @@ from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import save_figure
 from pipeline.core.settings import SEED_MAX, parse, rule
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.data.couplings import parse_couplings
 from pipeline.data.hole_sets import MAX_SET, MAX_TEST_GROUPS, SupervisedSet, build_hole_sets, write_hole_sets
 from pipeline.data.holes import joint_box
@@ -112,7 +111,7 @@ def run(cfg: DictConfig) -> dict:
     return meta
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, run, threads=None)  # torch's default threads
 

@@ -17,7 +17,6 @@ import logging
 import math
 import time
 
-import hydra
 from omegaconf import DictConfig
 
 from pipeline.assembly.rig import composed_rig
@@ -27,7 +26,7 @@ from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import write_csv, write_json
 from pipeline.core.settings import coerce, parse
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.data.holes import joint_box
 from pipeline.motion.timing import rig_motions
 from pipeline.plans.navigation import NavigationSettings, navigation_params
@@ -84,7 +83,7 @@ def run(cfg: DictConfig) -> dict:
     return summary
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, run, threads="threads")
 

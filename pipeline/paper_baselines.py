@@ -9,7 +9,6 @@ pso_population,ga,rbf}.csv`` and ``papers.md``, and logs them to MLflow (run ``p
 
 from __future__ import annotations
 
-import hydra
 import torch
 from omegaconf import DictConfig, OmegaConf
 
@@ -18,7 +17,7 @@ from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import InputError
 from pipeline.core.io import write_csv, write_text
 from pipeline.core.settings import parse
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.data.hole_sets import read_hole_poses
 from pipeline.data.holes import joint_box
 from pipeline.data.tables import COLLAR_COLUMNS, TOE_COLUMNS, collar_toe_poses, read_table
@@ -75,7 +74,7 @@ def blast_holes(path, depth: float) -> torch.Tensor:
     return collar_toe_poses(keep[COLLAR_COLUMNS].to_numpy(), keep[TOE_COLUMNS].to_numpy(), depth)
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, run, threads="threads")
 

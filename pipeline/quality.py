@@ -17,14 +17,13 @@ from __future__ import annotations
 import logging
 from dataclasses import asdict, dataclass, field
 
-import hydra
 from omegaconf import DictConfig
 
 from pipeline.core.config import as_dict, project_path
-from pipeline.core.errors import ConfigError
+from pipeline.core.errors import ConfigError, StrictCheckFailed
 from pipeline.core.io import require_writable
 from pipeline.core.settings import coerce, parse, rule
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.evaluation.plots import deviation_figure
 from pipeline.plans.as_drilled import deviations, face_coordinates
 from pipeline.plans.drpqual import read_quality_log
@@ -74,12 +73,12 @@ def run(cfg: DictConfig) -> dict:
              plan_path.name, summary["within"], summary["holes_planned"], summary["collar_dev_m_mean"] or 0.0,
              summary["collar_dev_m_p95"] or 0.0, len(summary["missing_from_log"]), paths.csv)
     if strict and summary["within"] != summary["holes_planned"]:
-        raise SystemExit(f"strict: {summary['holes_planned'] - summary['within']} of {summary['holes_planned']} "
-                         f"holes not drilled within tolerance (see {paths.csv})")
+        raise StrictCheckFailed(f"strict: {summary['holes_planned'] - summary['within']} of "
+                                f"{summary['holes_planned']} holes not drilled within tolerance (see {paths.csv})")
     return summary
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, run, threads=None)
 

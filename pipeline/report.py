@@ -10,14 +10,13 @@ from __future__ import annotations
 import json
 import logging
 
-import hydra
 import pandas as pd
 from omegaconf import DictConfig
 
 from pipeline.core.config import project_path
 from pipeline.core.errors import InputError
 from pipeline.core.io import copy_file, write_text
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.evaluation.markdown import markdown_rows
 from pipeline.evaluation.paper_numbers import PAPER000, PAPER000_CUIKM_GAIN, PAPER000_TABLE3
 from pipeline.geometry.collision import SAFETY_KINDS
@@ -118,7 +117,7 @@ def run(cfg: DictConfig) -> str:
     return text
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, run, threads=None)  # torch's default threads
 

@@ -39,7 +39,6 @@ from __future__ import annotations
 import logging
 from dataclasses import asdict, dataclass, field
 
-import hydra
 import numpy as np
 import pandas as pd
 from omegaconf import DictConfig
@@ -48,10 +47,10 @@ from pipeline.assembly.build import build_safety, load_boom
 from pipeline.assembly.rig import build_rig, composed_rig, model_files, rig_booms, rig_record, rig_spec, rig_tunnel
 from pipeline.calibration.model_file import model_setting
 from pipeline.core.config import as_dict, project_path
-from pipeline.core.errors import ConfigError
+from pipeline.core.errors import ConfigError, StrictCheckFailed
 from pipeline.core.io import file_md5, require_writable, save_figure, write_csv, write_text
 from pipeline.core.settings import SEED_MAX, RuntimeSettings, coerce, parse, rule
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.data.holes import joint_box
 from pipeline.execution.montecarlo import parse_execution
 from pipeline.execution.robust import robust_finish
@@ -251,7 +250,7 @@ def run(cfg: DictConfig) -> dict:
         log.warning("move not certified clear (event move_unclear in %s): boom %s %s -> %s: %s",
                     files["trajectory"].name, m["boom"], m["from"], m["to"], m["reason"])
     if unsafe and settings.strict:
-        raise SystemExit(f"schedule.strict: {'; '.join(unsafe)} (see {files['json']})")
+        raise StrictCheckFailed(f"schedule.strict: {'; '.join(unsafe)} (see {files['json']})")
     for line in unsafe:
         log.warning("round: %s", line)
     return summary
@@ -362,7 +361,7 @@ def with_invalid_rows(table: pd.DataFrame, plan) -> pd.DataFrame:
     return out
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, run, threads="threads")
 

@@ -29,7 +29,6 @@ from __future__ import annotations
 import logging
 from dataclasses import asdict, dataclass, field
 
-import hydra
 import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
@@ -38,10 +37,10 @@ from pipeline.assembly.build import build_safety, load_boom
 from pipeline.assembly.rig import build_rig, composed_rig, rig_spec
 from pipeline.calibration.model_file import model_setting
 from pipeline.core.config import as_dict, project_path
-from pipeline.core.errors import ConfigError
+from pipeline.core.errors import ConfigError, StrictCheckFailed
 from pipeline.core.io import require_writable
 from pipeline.core.settings import coerce, parse, rule
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.data.holes import joint_box
 from pipeline.evaluation.plots import solution_figure
 from pipeline.learning.network_source import load_network
@@ -117,8 +116,8 @@ def run(cfg: DictConfig) -> dict:
     # Before any work: never the plan itself, never colliding names, never a folder (pipeline/plans/output.py).
     paths = solution_paths(plan_path, project_path(cfg.out) if cfg.get("out") else None)
     out = paths.csv
-    require_writable(out.parent, "out (its folder)")
     strict = coerce(cfg.get("strict", False), "bool", "strict")
+    require_writable(out.parent, "out (its folder)")
     navigation = parse(NavigationSettings, cfg.navigation, "navigation")
     spec = rig_spec(cfg.rig)
     if len(spec.mounts) > 1:  # a reach table; one boom keeps today's path and file format
@@ -166,7 +165,7 @@ def run(cfg: DictConfig) -> dict:
     log.info("solved %d holes in %.2f s (%.3f ms/hole): %s -> %s", len(plan), result.wall_s, summary["ms_per_hole"],
              status_counts(table), out)
     if strict and summary["ok"] != len(table):
-        raise SystemExit(f"strict: {len(table) - summary['ok']} of {len(table)} holes are not ok (see {out})")
+        raise StrictCheckFailed(f"strict: {len(table) - summary['ok']} of {len(table)} holes are not ok (see {out})")
     return {**summary, "checksum": plan.checksum}
 
 
@@ -205,8 +204,8 @@ def solve_rig(cfg: DictConfig, rig, settings: SolveSettings, hybrid: HybridSetti
     log.info("rig %s: %d holes, %d ok by at least one boom (%s) -> %s", rig.name, summary["holes"],
              summary["ok_by_any"], ", ".join(f"{b}: {summary[b + '.ok']} ok" for b in rig.names), out)
     if strict and summary["ok_by_none"]:
-        raise SystemExit(f"strict: {summary['ok_by_none']} hole(s) no boom can drill: {summary['holes_ok_by_none']} "
-                         f"(see {out})")
+        raise StrictCheckFailed(f"strict: {summary['ok_by_none']} hole(s) no boom can drill: "
+                                f"{summary['holes_ok_by_none']} (see {out})")
     return summary
 
 
@@ -244,7 +243,7 @@ def boom_views(table, q: torch.Tensor, safety, limit: int) -> list[dict]:
     return views
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> None:
     run_stage(cfg, run, threads="threads")
 

@@ -23,7 +23,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import hydra
 import pandas as pd
 import torch
 from omegaconf import DictConfig, OmegaConf
@@ -33,7 +32,7 @@ from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import resolve_device
 from pipeline.core.io import publish, publish_lock, require_writable, write_csv, write_json
 from pipeline.core.settings import RuntimeSettings
-from pipeline.core.stage import run_stage
+from pipeline.core.stage import run_stage, stage_main
 from pipeline.data.tables import POSE_COLUMNS
 from pipeline.evaluation.metrics import solution_table, summarize
 from pipeline.geometry.collision import SafetyDistances
@@ -170,7 +169,7 @@ def save_outputs(model: IKNet, history: list[dict], final: dict, models_dir: Pat
     shutil.rmtree(run_dir, ignore_errors=True)
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@stage_main
 def main(cfg: DictConfig) -> float:
     return run_stage(cfg, run, threads="train_threads")["val_hole_mm"]
 

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pipeline.core.errors import ConfigError, InputError
+from pipeline.core.errors import ConfigError, InputError, StrictCheckFailed
 from pipeline.plans.as_drilled import deviations
 from pipeline.plans.drpqual import LOG_COLUMNS, read_quality_log, write_quality_log
 from pipeline.plans.model import COORDS
@@ -143,7 +143,7 @@ def test_the_stage_writes_its_set_logs_a_run_and_strict_exits_1(tmp_path, make_c
     (run,) = client.search_runs([client.get_experiment_by_name("boom-ik-tiny").experiment_id],
                                 "tags.stage = 'quality'")
     assert run.info.status == "FINISHED" and run.data.metrics["within"] == 3
-    with pytest.raises(SystemExit, match=r"strict: 1 of 4 holes not drilled within tolerance"):
+    with pytest.raises(StrictCheckFailed, match=r"strict: 1 of 4 holes not drilled within tolerance"):
         quality.run(make_cfg(tmp_path, f"plan={plan}", f"log={log_path}", "strict=true"))
     with pytest.raises(ConfigError, match=r"log = null: give the rig's quality log"):
         quality.run(make_cfg(tmp_path, f"plan={plan}"))

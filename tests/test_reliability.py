@@ -25,6 +25,7 @@ from mlflow.tracking import MlflowClient
 from pipeline import generate, paper_baselines, train
 from pipeline.core.config import PROJECT_ROOT
 from pipeline.core.errors import ConfigError, InputError
+from pipeline.core.exit_codes import ExitCode
 from pipeline.core.io import file_md5, write_json
 from pipeline.data.hole_sets import read_hole_table
 from pipeline.learning.models import load_checkpoint
@@ -115,7 +116,7 @@ def test_sigterm_ends_the_run_killed_and_leaves_no_partial_files(tmp_path, holes
     run_id = _wait_for_running_run(tmp, proc)
     proc.send_signal(signal.SIGTERM)
     out, _ = proc.communicate(timeout=120)
-    assert proc.returncode == 128 + signal.SIGTERM, out
+    assert proc.returncode == ExitCode.TERMINATED == 143, out  # the table's code (tests/test_exit_codes.py)
     client, _ = _client(tmp)
     ended = client.get_run(run_id)
     assert ended.info.status == "KILLED"

@@ -8,7 +8,7 @@ import torch
 
 from pipeline import demo_face, generate, solve, train
 from pipeline.assembly.rig import build_rig
-from pipeline.core.errors import ConfigError, InputError
+from pipeline.core.errors import ConfigError, InputError, StrictCheckFailed
 from pipeline.core.settings import parse
 from pipeline.geometry.boom_pair import BoomPair
 from pipeline.plans.csv_plan import read_csv_plan, write_csv_plan
@@ -201,7 +201,7 @@ def test_a_hole_no_boom_can_drill_stays_in_the_table_with_each_booms_status(stud
     far[["collar_x", "toe_x"]] += 25.0  # 25 m beyond the face: out of every boom's reach
     plan = tmp / "data" / "plans" / "far.csv"
     write_csv_plan(pd.concat([holes, far], ignore_index=True), plan)
-    with pytest.raises(SystemExit, match=r"1 hole\(s\) no boom can drill: \['FAR'\]"):
+    with pytest.raises(StrictCheckFailed, match=r"1 hole\(s\) no boom can drill: \['FAR'\]"):
         solve.run(make_cfg(tmp, *TINY, f"plan={plan}", "rig=twin", "strict=true", "solve.figure=false"))
     table = _read(plan.with_name("far_solution.csv"))
     far_rows = table[table["hole_id"] == "FAR"]

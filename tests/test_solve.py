@@ -12,7 +12,7 @@ from mlflow.tracking import MlflowClient
 
 from pipeline import solve
 from pipeline.core.config import PROJECT_ROOT
-from pipeline.core.errors import InputError
+from pipeline.core.errors import InputError, StrictCheckFailed
 from pipeline.evaluation.metrics import solution_table
 from pipeline.plans.csv_plan import read_csv_plan, write_csv_plan
 from pipeline.plans.iredes import write_iredes_plan
@@ -113,7 +113,7 @@ def test_strict_mode_exits_non_zero_and_still_writes_the_solution(study, make_cf
     plan.loc[0, ["collar_x", "toe_x"]] = [25.0, 28.5]  # far beyond reach
     path = tmp / "data" / "plans" / "strict.csv"
     plan.to_csv(path, index=False)
-    with pytest.raises(SystemExit, match="strict: 1 of 3 holes are not ok"):
+    with pytest.raises(StrictCheckFailed, match="strict: 1 of 3 holes are not ok"):
         solve.run(make_cfg(tmp, f"plan={path}", "strict=true"))
     table = pd.read_csv(path.with_name("strict_solution.csv"))
     assert table["status"].tolist() == ["unreachable", "ok", "ok"]

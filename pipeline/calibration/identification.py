@@ -30,7 +30,7 @@ from torch.func import jacfwd
 from pipeline.calibration.error_model import COMPONENTS, DTYPE, axis_frames, check_supported, parameter_names
 from pipeline.calibration.error_model import error_transforms as twist_transforms
 from pipeline.calibration.measurements import Measurements
-from pipeline.core.errors import ConfigError, InputError
+from pipeline.core.errors import ConfigError, Diverged, InputError
 from pipeline.geometry.kinematics import Boom
 from pipeline.optim.least_squares import Damping, Evaluation, least_squares
 
@@ -251,7 +251,7 @@ def identify(boom: Boom, meas: Measurements, basis: Basis, weights: Weights = We
     x, iterations = out.x[0], int(out.trials[0])
     history = [float(r @ r)] + [float(c[0]) for c, a in zip(out.costs, out.accepted, strict=True) if a[0]]
     if not torch.isfinite(x).all():
-        raise InputError(f"{meas.source}: identification diverged (non-finite parameters)")
+        raise Diverged(f"{meas.source}: identification diverged (non-finite parameters)")
     twists = problem.twists(x)
     p, z = predict(problem.links, problem.frames_p, twists, problem.tool)
     collar = (p - meas.collar).norm(dim=-1)

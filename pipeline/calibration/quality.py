@@ -28,7 +28,7 @@ import yaml
 from pipeline.calibration.error_model import DTYPE, BoomWithErrors
 from pipeline.calibration.identification import EQUATIONS_PER_MEASUREMENT, Basis, Identification, Weights, identify
 from pipeline.calibration.measurements import Measurements
-from pipeline.core.errors import ConfigError, InputError
+from pipeline.core.errors import ConfigError, Diverged, InputError
 from pipeline.core.io import write_text
 from pipeline.core.settings import parse, rule
 from pipeline.geometry.kinematics import Boom
@@ -132,7 +132,7 @@ def _holdout_ratio(boom: Boom, meas: Measurements, basis: Basis, weights: Weight
         keep[held] = False
         try:
             fold_fit = identify(boom, meas.subset(keep), basis, weights, max_iters, max_condition=max_condition)
-        except InputError as exc:
+        except (InputError, Diverged) as exc:
             return math.inf, f"fold {f + 1} of {folds} cannot be identified without its poses ({exc})"
         squared[held] = weighted_residuals(boom, fold_fit.twists, meas.subset(held), weights)
     ratio = math.sqrt(float(squared.mean()) / EQUATIONS_PER_MEASUREMENT)

@@ -36,7 +36,7 @@ from pipeline.calibration.model_file import save_model
 from pipeline.calibration.quality import GateSettings, assess, rejected_path, rejection_message, write_rejected
 from pipeline.calibration.swarm import PSOParams, SSAParams
 from pipeline.core.config import project_path
-from pipeline.core.errors import ConfigError, InputError
+from pipeline.core.errors import ConfigError, Diverged, InputError
 from pipeline.core.io import save_figure, write_csv, write_text
 from pipeline.core.settings import SEED_MAX, parse, rule
 from pipeline.data.holes import HoleSampling, sample_holes
@@ -210,7 +210,7 @@ def run_level(name: str, level: ErrorLevel, setup: Setup,
                 fit = identify(nominal, measured.subset(slice(0, n)), setup.basis, weights,
                                int(ccfg.identification.max_iters),
                                max_condition=float(ccfg.identification.max_condition))
-            except InputError as exc:  # too few / degenerate measurements: say so in the table, no silent NaN
+            except (InputError, Diverged) as exc:  # too few / degenerate measurements: said in the table, no silent NaN
                 log.warning("identification, level %s, n = %d: %s", name, n, exc)
                 nan = dict.fromkeys(COLUMNS[3:11], math.nan)
                 rows.append({"method": "identification", **common, **nan, "samples": n, "fit_s": 0.0,

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.core.errors import InputError
+from pipeline.core.errors import Deadlock, InputError
 from pipeline.execution.actions import Actions
 from pipeline.execution.graph import topological
 from pipeline.round.problem import Instance
@@ -90,7 +90,7 @@ def realised(inst: Instance, acts: Actions, ex: Execution, draw: int = 0) -> tup
     """Draw ``draw`` as an instance (each drilled hole's three phases scaled to its drawn duration) and
     a timeline (routes, move starts and arrivals), for the trajectory table and the oracle's scan."""
     if ex.deadlock is not None:
-        raise InputError(f"realised: the round deadlocks (cycle of actions {ex.deadlock}); no timeline")
+        raise Deadlock(f"realised: the round deadlocks (cycle of actions {ex.deadlock}); no timeline")
     H = inst.n_holes
     phases = inst.phases.copy()
     drills = np.flatnonzero(acts.is_drill)

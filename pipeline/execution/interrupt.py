@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.core.errors import ConfigError
+from pipeline.core.errors import ConfigError, Deadlock
 from pipeline.execution.actions import Actions
 from pipeline.execution.executor import execute
 from pipeline.execution.trajectory import Rows
@@ -62,7 +62,8 @@ def standing(acts: Actions, interlocks: np.ndarray, drill_s: np.ndarray, hole: i
     k = int(drills[0])
     ex = execute(acts, interlocks, drill_s)
     if ex.deadlock is not None:
-        raise ConfigError("the round deadlocks before the interruption: " + ", ".join(map(acts.name, ex.deadlock)))
+        raise Deadlock("interrupt: the round deadlocks before the interruption: "
+                       + ", ".join(map(acts.name, ex.deadlock)))
     duration = float(ex.end[0, k] - ex.start[0, k])
     if not (0 < at_s < duration):
         raise ConfigError(f"interrupt.at_s = {at_s}: hole {acts.hole_ids[hole]} drills for {duration:.3f} s in this "

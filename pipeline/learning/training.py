@@ -31,7 +31,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from pipeline.core.errors import ConfigError, InputError
+from pipeline.core.errors import ConfigError, Diverged, InputError
 from pipeline.core.io import atomic_write, file_md5
 from pipeline.core.settings import SEED_MAX, parse, rule
 from pipeline.core.signals import Terminated, raise_if_terminated
@@ -325,8 +325,8 @@ def fit(
             logged = step % eval_every == 0 or step == steps - 1
             terms = loss_terms(model, boom, safety, objective, pose, q, logged=logged)
             if not torch.isfinite(terms["loss"]):
-                raise InputError(f"training diverged: loss = {float(terms['loss'].detach())} at step {step} "
-                                 f"(terms {_finite_report(terms)}); check the data and train.lr = {lr}")
+                raise Diverged(f"training diverged: loss = {float(terms['loss'].detach())} at step {step} "
+                               f"(terms {_finite_report(terms)}); check the data and train.lr = {lr}")
             opt.zero_grad(set_to_none=True)
             terms["loss"].backward()
             if grad_clip:

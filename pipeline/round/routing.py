@@ -53,7 +53,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.core.errors import ConfigError
+from pipeline.core.errors import NoRoutes
 from pipeline.round.problem import Instance
 from pipeline.round.settings import RoundSettings
 
@@ -183,9 +183,10 @@ def route(inst: Instance, settings: RoundSettings, same_boom: Mapping[tuple[int,
     return Routes(routes, left_out, int(solution.ObjectiveValue()), _status(model))
 
 
-class RoutingFailed(ConfigError):
-    """OR-Tools found no routes: for the first solve, a setting to fix (precedence against reach); for
-    a re-optimisation with conflicts fed back, the planner keeps its best round."""
+class RoutingFailed(NoRoutes):
+    """OR-Tools found no routes: for the first solve, the round cannot be planned (exit 3; the message points
+    at round.precedence against the reach table); for a re-optimisation with conflicts fed back, the planner
+    keeps its best round."""
 
 
 def _status(model) -> str:

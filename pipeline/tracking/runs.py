@@ -33,7 +33,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pipeline.core.config import main_root
-from pipeline.core.errors import ConfigError
+from pipeline.core.errors import ConfigError, JobFailed
+from pipeline.core.exit_codes import for_signal
 from pipeline.core.io import file_md5, process_alive, require_writable
 from pipeline.core.signals import Terminated, raise_if_terminated, terminate_as_interrupt
 
@@ -123,8 +124,8 @@ def check_store(settings: TrackingSettings) -> None:
         require_writable(settings.artifact_root, "tracking.artifact_root", ConfigError)
 
 
-class StoreBusy(ConfigError):
-    """The store stayed locked by another process for longer than ``tracking.busy_timeout_s``."""
+class StoreBusy(JobFailed):
+    """The store stayed locked by another process for longer than ``tracking.busy_timeout_s`` (exit 3)."""
 
 
 _BUSY = {"uri": "", "timeout_s": 120.0}  # the store of the current stage run (one per process)
@@ -455,7 +456,7 @@ def stage_run(settings: TrackingSettings, run_name: str, tags: Mapping[str, str]
                 yield StageRun()
                 raise_if_terminated()
             except Terminated as exc:
-                raise SystemExit(128 + exc.signum) from exc
+                raise SystemExit(for_signal(exc.signum)) from exc
             return
         _BUSY.update(uri=settings.uri, timeout_s=settings.busy_timeout_s)
         try:  # a signal while waiting on the store: no run exists yet, so only the exit status to set
@@ -466,7 +467,7 @@ def stage_run(settings: TrackingSettings, run_name: str, tags: Mapping[str, str]
                                         {**process_tags(), **dict(tags or {})},
                                         bool(system_metrics and settings.system_metrics), resume_run_id)
         except Terminated as exc:
-            raise SystemExit(128 + exc.signum) from exc
+            raise SystemExit(for_signal(exc.signum)) from exc
         run_id = run.info.run_id
         try:
             yield StageRun(run_id)
@@ -475,7 +476,7 @@ def stage_run(settings: TrackingSettings, run_name: str, tags: Mapping[str, str]
             reason = str(exc) or "interrupted (SIGINT / Ctrl-C)"
             _end(run_id, "KILLED", reason)
             if isinstance(exc, Terminated):
-                raise SystemExit(128 + exc.signum) from exc
+                raise SystemExit(for_signal(exc.signum)) from exc
             raise
         except BaseException as exc:
             _end(run_id, "FAILED", f"{type(exc).__name__}: {exc}"[:5000])

@@ -36,6 +36,10 @@ from .realised import follow
 from .settings import CONF_DIR, differences, settings
 from .sweep import Sweep
 
+# The exit codes, one meaning each: the numbers of the stages' table (pipeline/core/exit_codes.py, which this
+# checker does not import; tests/test_exit_codes.py holds the two together).
+EXIT_CLEAN = 0  # no violation, every clearance certified
+EXIT_VIOLATIONS = 1  # violations found, or a clearance that cannot be certified: the JSON says which
 EXIT_INPUT = 2  # an input (file, argument, setting) the checker cannot judge: named on stderr
 EXIT_INTERNAL = 3  # the checker itself failed (a bug, or memory): its traceback on stderr; no verdict
 
@@ -388,7 +392,7 @@ def _motion(st, trajectory, spacing_m, levels, given, head, rows=None) -> dict:
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # bad arguments: exit 2 with one line, like every input error
         print(f"check_round: {message}\nusage: {USAGE}", file=sys.stderr)
-        raise SystemExit(2)
+        raise SystemExit(EXIT_INPUT)
 
 
 def main(argv=None) -> int:
@@ -423,7 +427,7 @@ def main(argv=None) -> int:
     bad = [o for o in args.overrides if "=" not in o]
     if bad:
         print(f"check_round: {bad}: not Hydra overrides (key=value)\nusage: {USAGE}", file=sys.stderr)
-        return 2
+        return EXIT_INPUT
     try:
         out = check(args.trajectory, args.overrides, args.round_csv, args.summary, args.plan, args.spacing_m,
                     args.collar_tol_mm, args.angle_tol_deg, args.levels, args.trajectory_only, args.actions,
@@ -438,4 +442,4 @@ def main(argv=None) -> int:
               "clean (0) nor violations (1)", file=sys.stderr)
         return EXIT_INTERNAL
     print(json.dumps(out, indent=1))
-    return 1 if out["violations"] or out["not_certified"] else 0
+    return EXIT_VIOLATIONS if out["violations"] or out["not_certified"] else EXIT_CLEAN
