@@ -16,7 +16,7 @@ import yaml
 from omegaconf import DictConfig
 
 from pipeline.assembly.build import build_safety, hole_sampling
-from pipeline.core.config import CONF_DIR
+from pipeline.core.config import CONF_DIR, IN_CHECKOUT, base_dir
 from pipeline.core.io import write_text
 from pipeline.core.settings import SEED_MAX, parse, rule
 from pipeline.core.stage import run_stage, stage_main
@@ -47,9 +47,10 @@ def run(cfg: DictConfig) -> dict:
         f"{stats['seed']}\n# ({stats['ok']} of them solved so). Full mechanical ranges instead: sup_box=full.\n"
     )
     text = header + yaml.safe_dump({"box": box}, sort_keys=False, default_flow_style=None)
-    write_text(text, CONF_DIR / "sup_box" / "working.yaml")
-    log.info("working box from %d of %d holes: %s -> %s", stats["ok"], stats["holes"], box,
-             CONF_DIR / "sup_box" / "working.yaml")
+    # the checkout's config; installed from the wheel, the packaged configs stay as shipped: ./conf/sup_box/
+    out = (CONF_DIR if IN_CHECKOUT else base_dir() / "conf") / "sup_box" / "working.yaml"
+    write_text(text, out)
+    log.info("working box from %d of %d holes: %s -> %s", stats["ok"], stats["holes"], box, out)
     return {"box": box, **stats}
 
 

@@ -14,7 +14,7 @@ import sys
 
 from omegaconf import OmegaConf
 
-from pipeline.core.config import PROJECT_ROOT, compose
+from pipeline.core.config import base_dir, compose
 from pipeline.core.io import write_text
 
 
@@ -25,7 +25,7 @@ def composed_yaml(overrides: list[str] | None = None) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    write_text(composed_yaml(list(sys.argv[1:] if argv is None else argv)), PROJECT_ROOT / "params.yaml")
+    write_text(composed_yaml(list(sys.argv[1:] if argv is None else argv)), base_dir() / "params.yaml")
 
 
 if __name__ == "__main__":

@@ -139,13 +139,14 @@ def test_the_rewriter_restores_the_exact_deps():
 
 # --- settings: params, never conf/ files read below the composition root ---------------------------------
 
-CONF_READERS = {"load_group_file", "CONF_DIR", "compose", "available"}  # pipeline.core.config's conf/ readers
+CONF_READERS = {"load_group_file", "CONF_DIR", "config_dir", "compose", "available"}  # core.config's conf/ readers
 PATH_CALLS = {"Path", "PurePath", "open", "load", "safe_load", "read_text", "glob", "is_file", "exists"}
 
 
 def composition_root(module: str) -> bool:
-    """Where conf/ may be read: the stages, the assembly (docs/design.md), the config loader itself."""
-    return g.layer(module) == "stages" or g.layer(module) == "assembly" or module == "pipeline.core.config"
+    """Where conf/ may be read: the stages, the assembly (docs/design.md), the config loader itself and the
+    stages' one Hydra entry (pipeline.core.stage: ``hydra.main`` on the config folder)."""
+    return g.layer(module) in ("stages", "assembly") or module in ("pipeline.core.config", "pipeline.core.stage")
 
 
 def _conf_text(node) -> bool:

@@ -1,4 +1,9 @@
-"""Where the configs live and how plain code (not a Hydra app) loads them."""
+"""Where the configs live and how plain code (not a Hydra app) loads them.
+
+Two layouts: a checkout (``pipeline/`` beside ``conf/`` and ``dvc.yaml`` or ``pyproject.toml``), where the
+configs are the checkout's ``conf/`` and relative paths are taken from the checkout's root; and an
+installed wheel, where the configs are the copy the wheel carries (``pipeline/_conf/``, the same files)
+and relative paths, outputs included, are taken from the current working directory."""
 
 from __future__ import annotations
 
@@ -10,7 +15,27 @@ from omegaconf import DictConfig, OmegaConf
 from pipeline.core.errors import ConfigError
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
-CONF_DIR = PROJECT_ROOT / "conf"
+PACKAGED_CONF = Path(__file__).resolve().parents[1] / "_conf"  # conf/ as the wheel carries it (setup.py)
+
+
+def in_checkout(root: Path = PROJECT_ROOT) -> bool:
+    """Whether ``root`` (the folder above ``pipeline/``) is a checkout: its ``conf/`` and ``dvc.yaml`` or
+    ``pyproject.toml`` there. An installed wheel's is ``site-packages``, which has none of them."""
+    return (root / "conf").is_dir() and ((root / "dvc.yaml").is_file() or (root / "pyproject.toml").is_file())
+
+
+def config_dir(root: Path = PROJECT_ROOT) -> Path:
+    """The config folder: the checkout's ``conf/`` when ``root`` is a checkout, else the wheel's copy."""
+    return root / "conf" if in_checkout(root) else PACKAGED_CONF
+
+
+IN_CHECKOUT = in_checkout()
+CONF_DIR = config_dir()
+
+
+def base_dir() -> Path:
+    """Where relative paths and outputs go: the checkout's root, else the current working directory."""
+    return PROJECT_ROOT if IN_CHECKOUT else Path.cwd()
 
 
 def main_root() -> Path:
@@ -19,6 +44,8 @@ def main_root() -> Path:
     This checkout, except inside a DVC temporary copy (``<repo>/.dvc/tmp/exps/...``), where it
     is the repository holding the copy, so experiments run there log to the same store.
     """
+    if not IN_CHECKOUT:
+        return base_dir()  # installed from the wheel: the current working directory
     parts = PROJECT_ROOT.parts
     for i in range(len(parts) - 2):
         if parts[i : i + 3] == (".dvc", "tmp", "exps"):
@@ -28,9 +55,21 @@ def main_root() -> Path:
 
 def project_path(path: str | Path) -> Path:
     """``path`` as given if absolute, else under this checkout (not the working directory, so
-    Hydra job folders and any cwd give the same answer)."""
+    Hydra job folders and any cwd give the same answer).
+
+    Installed from the wheel (no checkout): under the current working directory, except a ``conf/...`` path
+    that is not there but is in the wheel's copy of the configs, which is that file
+    (``tunnel.file=conf/tunnel/profiles/d_5x5.csv`` works as in a checkout)."""
     path = Path(path).expanduser()
-    return path if path.is_absolute() else PROJECT_ROOT / path
+    if path.is_absolute():
+        return path
+    if IN_CHECKOUT:
+        return PROJECT_ROOT / path
+    here = base_dir() / path
+    if path.parts[:1] == ("conf",) and not here.exists():
+        packaged = CONF_DIR.joinpath(*path.parts[1:])
+        return packaged if packaged.exists() else here
+    return here
 
 
 def available(group: str) -> list[str]:
@@ -59,6 +98,6 @@ def load_group_file(group: str, name: str) -> dict:
     """Load ``conf/<group>/<name>.yaml`` as a dict, naming the options when it is missing."""
     path = CONF_DIR / group / f"{name}.yaml"
     if not path.is_file():
-        rel = path.relative_to(PROJECT_ROOT)
+        rel = Path("conf", group, path.name)
         raise ConfigError(f"unknown {group} {name!r}: no {rel}; available: {available(group)}")
     return OmegaConf.to_container(OmegaConf.load(path), resolve=True)

@@ -77,14 +77,19 @@ def run_stage(cfg: DictConfig, run: Callable[[DictConfig], object], threads: str
 
 
 def stage_main(task: Callable[[DictConfig], object]) -> Callable[..., object]:
-    """``@hydra.main(version_base="1.3", config_path="../conf", config_name="config")`` for a stage's ``main``,
-    with the stage exit codes where Hydra itself ends the process. Hydra reports an error of its own
-    composition (a mistyped setting name: "Could not override 'solve.strictt'") or an exception out of the
-    task (a sweep's failed job, a fault) on stderr and exits 1; the code is taken here from that exception
-    instead (:func:`pipeline.core.exit_codes.exit_code`: 2 for a composition error), Hydra's message kept."""
+    """``@hydra.main(version_base="1.3", config_path=<conf>, config_name="config")`` for a stage's ``main``, on
+    the config folder :func:`pipeline.core.config.config_dir` gives (the checkout's ``conf/``, else the wheel's
+    copy; an absolute path, so the stage composes the same whether run as ``python -m pipeline.<stage>`` or
+    imported, as ``boom-ik <stage>`` does), with the stage exit codes where Hydra itself ends the process.
+    Hydra reports an error of its own composition (a mistyped setting name: "Could not override
+    'solve.strictt'") or an exception out of the task (a sweep's failed job, a fault) on stderr and exits 1;
+    the code is taken here from that exception instead (:func:`pipeline.core.exit_codes.exit_code`: 2 for a
+    composition error), Hydra's message kept."""
     import hydra
 
-    hydra_main = hydra.main(version_base="1.3", config_path="../conf", config_name="config")(task)
+    from pipeline.core.config import config_dir
+
+    hydra_main = hydra.main(version_base="1.3", config_path=str(config_dir()), config_name="config")(task)
 
     @functools.wraps(hydra_main)
     def main(cfg_passthrough: DictConfig | None = None):

@@ -48,7 +48,8 @@ MAX_BUSY_S = 86_400  # tracking.busy_timeout_s: conf/tracking/default.yaml
 # ---------------------------------------------------------------------------------------- settings
 def resolve_uri(uri: str | None) -> str:
     """The absolute tracking URI: ``uri``, else ``$MLFLOW_TRACKING_URI``, else the SQLite file
-    ``mlflow.db`` in the main checkout. A relative SQLite path is taken from the main checkout."""
+    ``mlflow.db`` in the main checkout. A relative SQLite path is taken from the main checkout (installed from
+    the wheel, with no checkout: from the current working directory, :func:`pipeline.core.config.main_root`)."""
     uri = uri or os.environ.get("MLFLOW_TRACKING_URI") or "sqlite:///mlflow.db"
     if uri.startswith("sqlite:///"):
         path = Path(uri.removeprefix("sqlite:///"))
