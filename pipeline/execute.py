@@ -18,9 +18,10 @@ and
    ``_executed.json``, ``_executed_makespans.png``, ``_executed_replay.html``, and the as-drilled log
    ``_executed_quality.xml``: IREDES DRPQual, each hole where the rig's real boom drilled it, in the plan frame,
    :mod:`pipeline.execution.as_drilled`), published whole and never over the planned files;
-4. checks with the independent checker (``scripts/check_round.py``, a separate process that imports
-   nothing of ``pipeline``), on the staged set before it is published: the planned set on exactly the
-   draws (``--draws``), and the realised set (``--realised``); their verdicts go into the JSON. For an
+4. checks with the independent checker (``scripts/check_round.py``, or ``python -m round_check`` installed
+   from the wheel: a separate process that imports nothing of ``pipeline``), on the staged set before it is
+   published: the planned set on exactly the draws (``--draws``), and the realised set (``--realised``);
+   their verdicts go into the JSON. For an
    IREDES plan both get the holes as read, as CSV (``<stem>_executed_plan.csv``, in the set). A check
    that cannot judge the set stops the stage (exit 2 for the checker's 2, else 3) and nothing is
    published; so does a signal (exit 128 + signum, the previous set intact), and so does a realised round
@@ -47,7 +48,7 @@ from omegaconf import DictConfig
 
 from pipeline.assembly.rig import composed_rig, model_files, rig_record, true_rig_booms
 from pipeline.calibration.model_file import model_setting
-from pipeline.core.config import as_dict, project_path
+from pipeline.core.config import IN_CHECKOUT, PROJECT_ROOT, as_dict, base_dir, project_path
 from pipeline.core.errors import ConfigError, Deadlock, InputError, JobFailed, StrictCheckFailed
 from pipeline.core.exit_codes import ExitCode
 from pipeline.core.io import file_md5, require_writable, save_figure, write_csv, write_text
@@ -76,6 +77,15 @@ from pipeline.tracking.runs import TrackingSettings, stage_run
 
 log = logging.getLogger(__name__)
 CHECKER = "scripts/check_round.py"
+
+
+def checker_command() -> list[str]:
+    """The independent checker's command: the checkout's script, else the installed ``round_check`` package
+    (the wheel ships it; ``boom-ik-check-round`` is the same command)."""
+    script = PROJECT_ROOT / CHECKER
+    if IN_CHECKOUT and script.is_file():
+        return [sys.executable, str(script)]
+    return [sys.executable, "-m", "round_check"]
 
 
 @dataclass(frozen=True)
@@ -280,8 +290,7 @@ def _planned_set(cfg, plan_path, settings: ExecuteSettings):
 def _check(args: list[str], what: str) -> dict:
     """Run the independent checker; its JSON verdict (stdout's last line) and exit code."""
     started = time.perf_counter()
-    proc = subprocess.run([sys.executable, str(project_path(CHECKER)), *args], capture_output=True, text=True,
-                          cwd=str(project_path(".")))
+    proc = subprocess.run([*checker_command(), *args], capture_output=True, text=True, cwd=str(base_dir()))
     out = {"exit": proc.returncode, "seconds": time.perf_counter() - started, "stderr": proc.stderr[-4000:]}
     try:  # the checker prints one JSON document
         doc = json.loads(proc.stdout) if proc.stdout.strip() else None

@@ -32,8 +32,9 @@ from .execute import draws, graph, read_draws
 from .executed import check as check_executed
 from .executed import episode_floors
 from .files import read_plan, read_round_table, read_summary, read_trajectory
+from .paths import project_path
 from .realised import follow
-from .settings import CONF_DIR, differences, settings
+from .settings import differences, settings
 from .sweep import Sweep
 
 # The exit codes, one meaning each: the numbers of the stages' table (pipeline/core/exit_codes.py, which this
@@ -112,7 +113,7 @@ def _plan_path(summary: dict, path: Path, plan) -> Path:
         # an IREDES plan: the holes the executor read from it, as CSV, beside the JSON (docs/round.md)
         return path.parent / holes
     p = Path(p)
-    return p if p.is_absolute() else CONF_DIR.parent / p  # the stage resolves a relative plan in the checkout
+    return project_path(p)  # as the stage resolves a relative plan: in the checkout (else the working directory)
 
 
 def _in_rig_frame(plan, nav):

@@ -28,6 +28,7 @@ import numpy as np
 
 from .distance import SURFACES
 from .errors import InputError
+from .paths import project_path
 
 MIN_SEGMENT_M = 1e-6
 COLUMNS = ["y", "z", "surface"]
@@ -176,7 +177,7 @@ def read_profile(value, max_vertices, root: Path) -> Profile:
                          "tunnel.file=<path.csv>)")
     if isinstance(max_vertices, bool) or not isinstance(max_vertices, int) or max_vertices < 3:
         raise InputError(f"settings: tunnel.max_vertices = {max_vertices!r}: expected a whole number >= 3")
-    path = Path(value) if Path(value).is_absolute() else root / value
+    path = project_path(value, root)
     where = f"tunnel.file {path}"
     df = _table(path, "tunnel profile (tunnel.file)")
     try:

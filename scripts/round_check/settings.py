@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -24,9 +23,8 @@ from .boom import BoomModel
 from .distance import Horseshoe
 from .errors import InputError
 from .navigation import Navigation, read_navigation
+from .paths import CONF_DIR, base_dir, project_path
 from .profile import Profile, read_profile
-
-CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 
 
 @dataclass
@@ -94,7 +92,7 @@ def _tunnel(node) -> Horseshoe | Profile:
     if kind == "horseshoe":
         return Horseshoe(0.5 * _number(node, "width", "tunnel"), _number(node, "wall_height", "tunnel"))
     if kind == "profile":
-        return read_profile(node.get("file"), node.get("max_vertices", 2000), CONF_DIR.parent)
+        return read_profile(node.get("file"), node.get("max_vertices", 2000), base_dir())
     raise InputError(f"settings: tunnel.kind = {kind!r}: expected horseshoe (width, wall_height) or profile "
                      "(tunnel.file)")
 
@@ -117,7 +115,7 @@ def _model_file(setting: str, value) -> dict:
 
     if not isinstance(value, str) or not value:
         raise InputError(f"settings: {setting} = {value!r}: expected the path of a boom model file")
-    path = Path(value) if Path(value).is_absolute() else CONF_DIR.parent / value
+    path = project_path(value)
     try:
         return yaml.safe_load(path.read_text())
     except (OSError, yaml.YAMLError) as e:
@@ -148,7 +146,7 @@ def record(rig: dict, tunnel: dict) -> dict:
     kind = tunnel.get("kind", "horseshoe" if "width" in tunnel else None)
     if kind == "profile":
         file = str(tunnel.get("file"))
-        path = Path(file) if Path(file).is_absolute() else CONF_DIR.parent / file
+        path = project_path(file)
         t = {"kind": "profile", "file": file, "md5": hashlib.md5(path.read_bytes()).hexdigest()}
     else:
         t = {"kind": str(kind), "width": float(tunnel["width"]), "wall_height": float(tunnel["wall_height"])}
@@ -216,7 +214,7 @@ def settings(overrides: list[str]) -> Settings:
     return Settings(
         rig=str(rig.get("name")), d_boom=_number(rig, "d_boom", "rig", positive=False), booms=booms,
         half_width=shape.half_width if horseshoe else None, wall_height=shape.wall_height if horseshoe else None,
-        tunnel=shape, navigation=read_navigation(cfg.get("navigation"), CONF_DIR.parent), record=record(rig, tunnel),
+        tunnel=shape, navigation=read_navigation(cfg.get("navigation"), base_dir()), record=record(rig, tunnel),
         safety={k: _number(safety, k, "safety", positive=False) for k in ("self", "wall", "ground", "arch")},
         collaring_s=_number(drilling, "collaring_s", "motion.drilling", positive=False),
         rate_m_per_s=_number(drilling, "rate_m_per_min", "motion.drilling") / 60.0,
