@@ -69,9 +69,10 @@ def imports(module: str, source: str, modules: dict[str, str], root: Path = ROOT
 
 def layer(module: str) -> str | None:
     """The layer of a module: its package under ``pipeline``, ``stages`` for ``pipeline/<stage>.py``
-    (and the shims beside them), None for the ``pipeline`` package itself."""
+    (and the shims beside them), None for the ``pipeline`` package itself and its ``__main__`` (``boom-ik``,
+    which imports a stage by the name it is given, none in its source)."""
     parts = module.split(".")
-    if len(parts) == 1:
+    if len(parts) == 1 or module == f"{PACKAGE}.__main__":
         return None
     if len(parts) == 2 and parts[1] not in LAYERS:
         return "stages"

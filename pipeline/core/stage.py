@@ -34,11 +34,14 @@ exits with the code of the failure Hydra reports.
 
 from __future__ import annotations
 
+import ast
 import functools
 import logging
+import re
 import sys
 import traceback
 from collections.abc import Callable
+from pathlib import Path
 
 from omegaconf import DictConfig
 
@@ -105,3 +108,21 @@ def stage_main(task: Callable[[DictConfig], object]) -> Callable[..., object]:
             raise SystemExit(exit_code(exc)) from None
 
     return main
+
+
+STAGE_MARK = "@stage_main\ndef main("  # how every stage module's main starts (tests/test_exit_codes.py holds it)
+PACKAGE = Path(__file__).resolve().parents[1]  # pipeline/
+
+
+def stage_modules(package: Path = PACKAGE) -> dict[str, str]:
+    """``{stage: one line}`` for the modules of ``pipeline/`` whose ``main`` is a :func:`stage_main` (read from
+    their source, nothing imported): the stages ``boom-ik`` runs, each with its docstring's first line."""
+    stages = {}
+    for path in sorted(package.glob("*.py")):
+        text = path.read_text(encoding="utf-8")
+        if STAGE_MARK in text:
+            first = (ast.get_docstring(ast.parse(text)) or "").strip().splitlines()[:1]
+            line = re.sub(r"^Stage(?: ``\w+``)?(?: \([^)]*\))?: ", "", first[0] if first else "")
+            line = re.sub(r" \((?:issue|spec)[^)]*\)|, ``python -m [^`]*``", "", line).replace("``", "")
+            stages[path.stem] = line[:1].upper() + line[1:]
+    return stages
