@@ -3,9 +3,10 @@ top-level ``round_check``) and both commands; outside a checkout the configs are
 relative paths are the working directory's; ``boom-ik <stage>`` is ``python -m pipeline.<stage>``.
 
 The wheel is built from a copy of the files it is made of (``pip wheel --no-build-isolation``: the
-installed setuptools, nothing downloaded, where it is new enough), so the checkout is left as it is. ``.ci/run`` also installs it
-into a fresh environment and runs stages from an empty folder."""
+installed setuptools, nothing downloaded, where it is new enough), so the checkout is left as it is.
+``.ci/run`` also installs it into a fresh environment and runs stages from an empty folder."""
 
+import importlib
 import importlib.metadata
 import os
 import shutil
@@ -117,7 +118,7 @@ def test_outside_a_checkout_paths_and_the_store_are_the_working_directorys(tmp_p
 def test_the_checker_finds_its_configs_as_the_stages_do(tmp_path, monkeypatch):
     sys.path.insert(0, str(SCRIPTS))
     try:
-        from round_check import paths
+        paths = importlib.import_module("round_check.paths")  # the checker's own module, through the script's path
     finally:
         sys.path.remove(str(SCRIPTS))
     assert paths.IN_CHECKOUT and paths.CONF_DIR == config.CONF_DIR and paths.base_dir() == PROJECT_ROOT
