@@ -44,6 +44,7 @@ def deletions(traj: Path, overrides: list[str], draws: int) -> list[dict]:
     stem = traj.name.removesuffix("_trajectory.csv")
     locks = pd.read_csv(traj.with_name(f"{stem}_interlocks.csv"), keep_default_na=False)
     rows = [{"set": stem, "deleted": "none (intact)", **check(traj, overrides, draws)}]
+    print(rows[-1], flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         for k, lock in locks.iterrows():
             folder = Path(tmp) / str(k)
@@ -61,7 +62,9 @@ def main(argv: list[str]) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("trajectories", nargs="+", type=Path)
     ap.add_argument("--execute", type=int, default=1000)
-    args, overrides = ap.parse_known_args(argv)
+    # the stage's overrides follow "--" (argparse would take them for more trajectories)
+    cut = argv.index("--") if "--" in argv else len(argv)
+    args, overrides = ap.parse_args(argv[:cut]), argv[cut + 1:]
     rows = [r for t in args.trajectories for r in deletions(t.resolve(), overrides, args.execute)]
     table = pd.DataFrame(rows)
     print(table.to_markdown(index=False))

@@ -24,7 +24,7 @@ from mlflow.tracking import MlflowClient
 
 from pipeline import generate, paper_baselines, train
 from pipeline.core.config import PROJECT_ROOT
-from pipeline.core.errors import ConfigError, InputError
+from pipeline.core.errors import ConfigError, Diverged, InputError
 from pipeline.core.exit_codes import ExitCode
 from pipeline.core.io import file_md5, write_json
 from pipeline.data.hole_sets import read_hole_table
@@ -201,7 +201,7 @@ def test_a_non_finite_loss_stops_training_and_names_the_step(safety):
     pose = torch.zeros(8, 6)
     model = build_model(safety.boom, pose.mean(0), torch.ones(6), 8, 1, "gelu")
     batches = iter([(torch.full((8, 6), float("nan")), None)] * 3)
-    with pytest.raises(InputError, match=r"loss = nan at step 0"):
+    with pytest.raises(Diverged, match=r"loss = nan at step 0"):  # the job could not finish: exit 3
         fit(model, safety.boom, safety, Objective(False, 1.0, 0.0, "norm"), batches, 3, 1e-3, pose)
 
 
