@@ -49,6 +49,7 @@ from omegaconf import DictConfig
 from pipeline.assembly.rig import composed_rig, model_files, rig_record, true_rig_booms
 from pipeline.calibration.model_file import model_setting
 from pipeline.core.config import IN_CHECKOUT, PROJECT_ROOT, as_dict, base_dir, project_path
+from pipeline.core.csv_input import read_text_csv
 from pipeline.core.errors import ConfigError, Deadlock, InputError, JobFailed, StrictCheckFailed
 from pipeline.core.exit_codes import ExitCode
 from pipeline.core.io import file_md5, require_writable, save_figure, write_csv, write_text
@@ -222,13 +223,8 @@ def verify_planned(planned, doc: dict, plan_path, recorded_with: dict) -> None:
 def _csv(path, columns, what: str, numeric=()) -> pd.DataFrame:
     """A planned CSV, every column there and every ``numeric`` cell a finite number; else an :class:`InputError`
     naming the file, the column and the row (file line)."""
-    try:
-        df = pd.read_csv(path, keep_default_na=False, dtype=str)
-    except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
-        raise InputError(f"{path}: cannot read the {what} as CSV ({' '.join(str(e).split())})") from None
-    missing = [c for c in columns if c not in df.columns]
-    if missing:
-        raise InputError(f"{path}: the {what} has no column(s) {missing}")
+    # the checker's bound on a planned file's size (round_check/files.py)
+    df = read_text_csv(path, what, list(columns), max_mb=256.0)
     for c in numeric:
         v = pd.to_numeric(df[c], errors="coerce").to_numpy(float)
         bad = ~np.isfinite(v)

@@ -39,7 +39,7 @@ import pandas as pd
 
 from pipeline.core.errors import InputError
 from pipeline.core.io import atomic_write
-from pipeline.plans.iredes import DR_NS, IR_NS, LABELS, MAX_TEXT, VERSION, add_element, add_point, read_iredes_file
+from pipeline.plans.iredes import DR_NS, IR_NS, LABELS, MAX_TEXT, add_element, add_point, new_document, read_iredes_file
 from pipeline.plans.iredes_checksum import crc32_text, file_crc32
 from pipeline.plans.iredes_frames import TMATRIX_TOL, apply_local_to_plan, axis_map
 from pipeline.plans.model import COORDS, RowProblem
@@ -127,11 +127,7 @@ def quality_log_bytes(holes: pd.DataFrame, *, plan_id: str, plan_name: str, crea
     if missing:
         raise InputError(f"quality log: missing column(s) {missing}")
     stamp = created.isoformat() if isinstance(created, datetime) else str(created)
-    versions = ("IRVersion", "IRDownwCompat", "DRPQualVersion", "DRPQualDownwCompat")
-    root = ET.Element("DRPQual", {"xmlns": DR_NS, **dict.fromkeys(versions, VERSION)})
-    head = add_element(root, IR_NS, "GenHead")
-    add_element(head, IR_NS, "FileCreateDate", stamp)
-    add_element(head, IR_NS, "IRversion", VERSION, DownwCompat=VERSION)
+    root = new_document("DRPQual", stamp)
     add_element(root, IR_NS, "PlanIdRef", plan_id)
     add_element(root, IR_NS, "PlanNameRef", plan_name)
     points = holes[COORDS].to_numpy(dtype=np.float64)

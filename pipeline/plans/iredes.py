@@ -378,6 +378,17 @@ def add_element(parent: ET.Element, ns: str, tag: str, text: str | None = None, 
     return el
 
 
+def new_document(kind: str, stamp: str) -> ET.Element:
+    """The root of an IREDES Drill Rig document ``kind`` (``DRPPlan``, ``DRPQual``) with its versions and
+    ``GenHead`` (created ``stamp``), as plans and quality logs both begin."""
+    versions = ("IRVersion", "IRDownwCompat", f"{kind}Version", f"{kind}DownwCompat")
+    root = ET.Element(kind, {"xmlns": DR_NS, **dict.fromkeys(versions, VERSION)})
+    head = add_element(root, IR_NS, "GenHead")
+    add_element(head, IR_NS, "FileCreateDate", stamp)
+    add_element(head, IR_NS, "IRversion", VERSION, DownwCompat=VERSION)
+    return root
+
+
 def add_point(parent: ET.Element, name: str, xyz: np.ndarray) -> None:
     pt = add_element(parent, DR_NS, name)
     for axis, v in zip(AXES, xyz, strict=True):
@@ -410,11 +421,7 @@ def iredes_bytes(
     stamp = created or datetime.now(UTC).replace(tzinfo=None, microsecond=0)
     stamp = stamp.isoformat() if isinstance(stamp, datetime) else str(stamp)
 
-    versions = ("IRVersion", "IRDownwCompat", "DRPPlanVersion", "DRPPlanDownwCompat")
-    root = ET.Element("DRPPlan", {"xmlns": DR_NS, **dict.fromkeys(versions, VERSION)})
-    head = add_element(root, IR_NS, "GenHead")
-    add_element(head, IR_NS, "FileCreateDate", stamp)
-    add_element(head, IR_NS, "IRversion", VERSION, DownwCompat=VERSION)
+    root = new_document("DRPPlan", stamp)
     add_element(root, IR_NS, "PlanId", plan_id)
     add_element(root, IR_NS, "PlanName", plan_name)
     add_element(root, IR_NS, "Comment",
