@@ -12,11 +12,8 @@ dense check with the pipeline's kinematics (not the checker's)."""
 
 from __future__ import annotations
 
-import contextlib
 import importlib
 import importlib.util
-import io
-import json
 import math
 
 import numpy as np
@@ -25,12 +22,8 @@ import pytest
 import torch
 from conftest import CHECK_STAGE
 from fk_rounds import boom_joints
+from round_checker import cr, run_checker
 
-from pipeline.core.config import PROJECT_ROOT
-
-_spec = importlib.util.spec_from_file_location("check_round_script", PROJECT_ROOT / "scripts" / "check_round.py")
-cr = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(cr)
 rc_actions = importlib.import_module("round_check.actions")  # the checker's own modules, through the script's path
 rc_certify = importlib.import_module("round_check.certify")
 rc_execute = importlib.import_module("round_check.execute")
@@ -368,14 +361,7 @@ def planned(tmp_path_factory):
     return tmp, ["experiment=tiny", f"paths.data={tmp}/data", *stage]
 
 
-def _check(traj, overrides, *extra):
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            rc = cr.main([str(traj), *overrides, *extra])
-        except SystemExit as e:
-            rc = e.code
-    return rc, (json.loads(out.getvalue()) if out.getvalue() else None), err.getvalue()
+_check = run_checker
 
 
 class Executor:

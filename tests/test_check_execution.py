@@ -15,12 +15,8 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
+from round_checker import cr, run_checker
 
-from pipeline.core.config import PROJECT_ROOT
-
-_spec = importlib.util.spec_from_file_location("check_round_script", PROJECT_ROOT / "scripts" / "check_round.py")
-cr = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(cr)
 ex = importlib.import_module("round_check.execute")  # the checker's own modules, through the script's path
 ep = importlib.import_module("round_check.episodes")
 rc_actions = importlib.import_module("round_check.actions")
@@ -78,13 +74,7 @@ def _set(base, name, acts=None, locks=None, traj=None):
 
 
 def _run(base, traj, *extra):
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            rc = cr.main([str(traj), *base[1], *extra])
-        except SystemExit as e:
-            rc = e.code
-    return rc, (json.loads(out.getvalue()) if out.getvalue() else None), err.getvalue()
+    return run_checker(traj, base[1], *extra)
 
 
 def _fails(base, traj, *needles, code=1, extra=("--execute", "4")):

@@ -7,7 +7,6 @@ sloped floor; a plan moved into another frame checks clean only with the navigat
 points fit recovers a known pose and refuses too few, collinear or badly fitting points."""
 
 import contextlib
-import importlib.util
 import io
 import json
 import math
@@ -17,20 +16,10 @@ import sys
 import numpy as np
 import pandas as pd
 import pytest
+from round_checker import SCRIPT, cr
 
 from pipeline.core.config import PROJECT_ROOT
 
-SCRIPT = PROJECT_ROOT / "scripts" / "check_round.py"
-
-
-def _load():
-    spec = importlib.util.spec_from_file_location("check_round_script", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-cr = _load()
 rc_settings = cr.settings.settings
 PROFILES = PROJECT_ROOT / "conf" / "tunnel" / "profiles"
 BOX = ["tunnel=profile", f"tunnel.file={PROFILES / 'box_5.5x4.5.csv'}"]

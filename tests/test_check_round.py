@@ -2,7 +2,6 @@
 each planted fault with the right message and exit code; it imports nothing of ``pipeline``; its
 geometry agrees with independent values (the spec's test vectors, brute force over dense points)."""
 
-import importlib.util
 import json
 import math
 import shutil
@@ -12,20 +11,10 @@ import sys
 import numpy as np
 import pandas as pd
 import pytest
+from round_checker import SCRIPT, cr, run_checker
 
 from pipeline.core.config import PROJECT_ROOT
 
-SCRIPT = PROJECT_ROOT / "scripts" / "check_round.py"
-
-
-def _load():
-    spec = importlib.util.spec_from_file_location("check_round_script", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-cr = _load()
 rc_distance, rc_settings, Sweep = cr.distance, cr.settings.settings, cr.sweep.Sweep  # the checker's own modules
 
 
@@ -35,18 +24,7 @@ def good(small_twin_round):
     return small_twin_round
 
 
-def _run(traj, overrides, *extra):
-    """The command in-process: (exit code, report or None, stderr text)."""
-    import contextlib
-    import io
-
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            rc = cr.main([str(traj), *overrides, *extra])
-        except SystemExit as e:
-            rc = e.code
-    return rc, (json.loads(out.getvalue()) if out.getvalue() else None), err.getvalue()
+_run = run_checker
 
 
 def _plant(good, name, traj=None, table=None, summary=None):
