@@ -1,4 +1,4 @@
-"""Stage ``calibrate`` (issue 13, paper 004): kinematic error compensation against identification.
+"""Stage ``calibrate`` (paper 004): kinematic error compensation against identification.
 
     python -m pipeline.calibrate                                  # the study -> paths.data/calibration/
     python -m pipeline.calibrate measurements=field.csv           # fit a measurement file -> calibration.model_file

@@ -40,7 +40,8 @@ def run(cfg: DictConfig) -> dict:
                                     solve=local_search(safety))
     header = (
         "# @package holes.sup\n"
-        "# Omega_sup's working box (spec section 3): per joint [lower, upper], deg for revolute joints, m for\n"
+        "# Omega_sup's working box (docs/reference.md, section 3): per joint [lower, upper], deg for revolute "
+        "joints, m for\n"
         "# prismatic ones. Derived by `python -m pipeline.derive_box` (pipeline/learning/supervised_set.py, with\n"
         f"# the local search of pipeline/solvers/labels.py): the percentiles {stats['percentiles']} of the exact,\n"
         f"# clear solutions that the search finds for {stats['holes']} holes drawn like Omega_unsup with seed "

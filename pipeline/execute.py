@@ -1,4 +1,4 @@
-"""Stage: a planned round executed by events (spec section 8), ``python -m pipeline.execute plan=P rig=twin``.
+"""Stage: a planned round executed by events (docs/reference.md, section 8).
 
 It reads the set ``schedule`` wrote for the plan (``<stem>_trajectory.csv``, ``_actions.csv``,
 ``_interlocks.csv``, ``_round.csv``, ``_round.json``; ``execute.round`` points elsewhere), first holding
@@ -6,18 +6,18 @@ every file it reads to the MD5 the round JSON records for it, the plan to ``plan
 rig and tunnel to ``planned_with`` (:func:`verify_planned`: a changed file is refused, exit 2, naming it),
 and
 
-1. executes it under the drilling-time model of the ``execution`` group (seeded uniform factors, stalls
+1. executes it under the drilling-time model of the ``draws`` group (seeded uniform factors, stalls
    with a probability, fixed factors of named holes) by the execution rule: every draw at once, the
    makespans and the standing at interlocks summarised, the factors written to ``<stem>_draws.csv``;
 2. realises one round (``execute.draw``: ``nominal`` or the k-th random draw) and, with
    ``execute.interrupt.hole`` / ``at_s``, interrupts that hole: the round is then handed on
-   (:mod:`pipeline.execution.interrupt`), re-planned from where every boom stands (``replan: true``, the
+   (:mod:`pipeline.events.interrupt`), re-planned from where every boom stands (``replan: true``, the
    instance rebuilt from the plan and the rig as ``schedule`` builds it) or going on with its own actions;
-3. writes the executed set (``<stem>_executed_trajectory.csv`` in the spec-7 format,
+3. writes the executed set (``<stem>_executed_trajectory.csv`` in the section-7 format,
    ``_executed_actions.csv`` with the executed times, ``_executed_interlocks.csv``, ``_executed_round.csv``,
    ``_executed.json``, ``_executed_makespans.png``, ``_executed_replay.html``, and the as-drilled log
    ``_executed_quality.xml``: IREDES DRPQual, each hole where the rig's real boom drilled it, in the plan frame,
-   :mod:`pipeline.execution.as_drilled`), published whole and never over the planned files;
+   :mod:`pipeline.events.as_drilled_log`), published whole and never over the planned files;
 4. checks with the independent checker (``scripts/check_round.py``, or ``python -m round_check`` installed
    from the wheel: a separate process that imports nothing of ``pipeline``), on the staged set before it is
    published: the planned set on exactly the draws (``--draws``), and the realised set (``--realised``);
@@ -55,19 +55,19 @@ from pipeline.core.exit_codes import ExitCode
 from pipeline.core.io import file_md5, require_writable, save_figure, write_csv, write_text
 from pipeline.core.settings import coerce, parse, rule
 from pipeline.core.stage import run_stage, stage_main
-from pipeline.execution.actions import (
+from pipeline.events.actions import (
     actions_from_table,
     actions_table,
     interlocks_table,
     read_actions,
     read_interlocks,
 )
-from pipeline.execution.as_drilled import drilled_holes
-from pipeline.execution.executed import draws_table, executed_round_table, long_holes
-from pipeline.execution.executor import execute
-from pipeline.execution.interrupt import interrupted_round, standing
-from pipeline.execution.montecarlo import draws, fixed_factors, parse_execution, run, summary
-from pipeline.execution.trajectory import action_rows, retimed
+from pipeline.events.as_drilled_log import drilled_holes
+from pipeline.events.draws import draws, fixed_factors, parse_draws, run, summary
+from pipeline.events.executed_files import draws_table, executed_round_table, long_holes
+from pipeline.events.interrupt import interrupted_round, standing
+from pipeline.events.rule import execute
+from pipeline.events.trajectory import action_rows, retimed
 from pipeline.plans.drpqual import write_quality_log
 from pipeline.plans.model import COLLAR
 from pipeline.plans.navigation import NavigationSettings, same_navigation
@@ -111,6 +111,10 @@ class ExecuteSettings:
     replay_frames: int = field(default=400, metadata=rule(ge=2, le=10_000))
     progress: bool = True
     start_time: str = "2026-01-01T07:00:00"  # the round's start on the clock: the as-drilled log's times
+    # the boom the rig really has, for the as-drilled log (pipeline/events/as_drilled_log.py): a boom config
+    # file, or a calibrated model file; null: the model the round was planned with
+    true_boom: str | None = None
+    true_boom_model: str | None = None
 
 
 def parse_execute(cfg: DictConfig) -> tuple[ExecuteSettings, InterruptSettings]:
@@ -149,7 +153,7 @@ def replan_round(cfg, node=None):
 
 
 # what execute reads of the planned set: each must be the file schedule wrote (its MD5 in the JSON's manifest)
-READS = ("trajectory", "actions", "interlocks", "round", "moves")
+READS = ("trajectory", "actions", "interlocks", "round", "moves", "problem")
 MAX_JSON_MB = 64.0  # the planned round's JSON, read whole (as the checker's bound)
 
 
@@ -193,6 +197,9 @@ def verify_planned(planned, doc: dict, plan_path, recorded_with: dict) -> None:
         if said is None:
             if kind == "moves" and not path.exists():
                 continue  # no move book: every move is certified again
+            if kind == "problem" and not path.exists():
+                raise InputError(f"{path}: not found, and {where} does not list it: a set planned before schedule "
+                                 "wrote the round's problem; re-run schedule")
             raise InputError(f"{path}: not in the manifest of {where} (`files`): not a file of the planned set; "
                              "re-run schedule, or remove it")
         if not path.is_file():
@@ -278,7 +285,7 @@ def _planned_set(cfg, plan_path, settings: ExecuteSettings):
     planned = round_paths(plan_path, project_path(settings.round) if settings.round else None)
     for kind in ("trajectory", "actions", "interlocks", "round", "json"):
         if not planned[kind].is_file():
-            raise InputError(f"{planned[kind]}: not found; the executor runs a round that schedule planned "
+            raise InputError(f"{planned[kind]}: not found; the execute stage runs a round that schedule planned "
                              f"(python -m pipeline.schedule plan={plan_path} rig=...), or point execute.round at it")
     return planned
 
@@ -318,35 +325,23 @@ def _verdict(doc: dict | None) -> dict | None:
     return keep
 
 
-def _instance(cfg, rig, plan, round_settings, planned_table):
-    """The round's instance and oracle, built from the plan and the rig as ``schedule`` builds them, each
-    planned hole at the joints of the planned round table (the postures the round chose)."""
-    from pipeline.data.holes import joint_box
+def _instance(cfg, rig, plan, round_settings, problem_path):
+    """The round's instance and oracle, rebuilt from the problem schedule wrote (``<stem>_problem.npz``: each
+    boom's joints per hole, the planned postures among them): no network and no IK solve."""
     from pipeline.motion.timing import rig_motions
-    from pipeline.plans.reach import reach_table, rig_solvers
-    from pipeline.round.from_plan import planned_joints, round_instance
-    from pipeline.solvers.hybrid import HybridSettings
-    from pipeline.solvers.network_start import first_starts, network_source
+    from pipeline.round.from_plan import problem_instance
+    from pipeline.round.problem_file import load_problem
 
-    network = cfg.schedule.get("network")
-    model_uri = cfg.schedule.get("model_uri")
-    source = network_source(project_path(cfg.paths.data), network, model_uri)
-    first = first_starts(source, network, TrackingSettings.from_config(cfg.tracking).uri, "schedule.model_uri")
-    box = cfg.holes.sup.get("box")
-    solvers = rig_solvers(rig, first, parse(HybridSettings, cfg.solver, "solver"),
-                          joint_box(rig.booms[0].boom, None if box is None else as_dict(box)))
-    reach = reach_table(plan, rig, solvers, "hybrid")
-    motions = rig_motions(as_dict(cfg.motion), rig.booms)
-    joints = planned_joints(rig, plan, reach, planned_table, list(rig.booms[0].boom.joint_names))
-    inst, oracle, _ = round_instance(rig, plan, reach, motions, round_settings, joints)
-    return inst, oracle
+    ids = plan.holes["hole_id"].astype(str).tolist()
+    problem = load_problem(problem_path, rig.names, ids, list(rig.booms[0].boom.joint_names))
+    return problem_instance(rig, plan, problem, rig_motions(as_dict(cfg.motion), rig.booms), round_settings)
 
 
 def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
     """The stage (module docstring); ``overrides``: the Hydra overrides ``cfg`` was composed with, passed
     to the checker so that it composes the same settings (default: this run's own, under Hydra)."""
     settings, inter = parse_execute(cfg)
-    execution = parse_execution(as_dict(cfg.execution), "execution")
+    draw_settings = parse_draws(as_dict(cfg.draws), "draws")
     tracking = TrackingSettings.from_config(cfg.tracking)
     plan_path = project_path(coerce(cfg.plan, "str", "plan"))
     planned = _planned_set(cfg, plan_path, settings)
@@ -356,7 +351,7 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
                         [plan_path, *planned.all().values(), *map(project_path, model_files(cfg))], EXECUTED)
     require_writable(files.folder, "execute.out (its folder)")
     rig = composed_rig(cfg, model_setting)
-    true_booms, true_source = true_rig_booms(rig, execution.true_boom, execution.true_boom_model, model_setting)
+    true_booms, true_source = true_rig_booms(rig, settings.true_boom, settings.true_boom_model, model_setting)
     doc = _planned_doc(planned["json"])
     if doc.get("rig") != rig.name:
         raise ConfigError(f"rig = {rig.name}: the planned round {planned['json']} is of rig {doc.get('rig')!r}")
@@ -384,7 +379,7 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
     with stage_run(tracking, f"execute-{plan_path.stem}-{rig.name}",
                    {"stage": "execute", "plan": str(plan_path), "rig": rig.name}) as mlrun:
         mlrun.log_params({"plan": str(plan_path), "rig": rig.name, "execute": as_dict(cfg.execute),
-                          "execution": as_dict(cfg.execution)})
+                          "draws": as_dict(cfg.draws)})
         timings: dict[str, float] = {}
         writers = {}
         out: dict = {"plan": str(plan_path), "plan_md5": doc["plan_md5"], "planned_with": doc["planned_with"],
@@ -395,7 +390,7 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
             holes = _plan_holes(plan)
             writers["plan"] = lambda p: write_csv(holes, p)
             out["plan_holes"] = files["plan"].name
-        d = draws(acts, execution)
+        d = draws(acts, draw_settings)
         mc = None
         if settings.monte_carlo:
             t0 = time.perf_counter()
@@ -406,17 +401,17 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
             dt = draws_table(acts, d)
             writers["draws"] = lambda p: write_csv(dt, p)
             if settings.figures:
-                from pipeline.execution.robust import makespans_figure
+                from pipeline.events.robust_round import makespans_figure
 
                 fig_span, fig_labels = ex_all.makespan, d.labels
         # the realised round
-        fixed = fixed_factors(acts, execution.factors)
+        fixed = fixed_factors(acts, draw_settings.factors)
         if settings.draw == "nominal":
             factor, label = fixed, "nominal"
         else:
             k = int(settings.draw)
-            if k >= execution.draws:
-                raise ConfigError(f"execute.draw = {k}: there are execution.draws = {execution.draws} random draws")
+            if k >= draw_settings.count:
+                raise ConfigError(f"execute.draw = {k}: there are draws.count = {draw_settings.count} random draws")
             factor, label = d.factors[k], f"random draw {k}"
         drill_s = factor * planned_s
         interrupted: set[int] = set()
@@ -442,7 +437,7 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
                 # the round group's settings, then execute.replan_round's (routing off by default: on the clock)
                 round_settings = replan_round(cfg)
                 t0 = time.perf_counter()
-                inst, oracle = _instance(cfg, rig, plan, round_settings, planned_table)
+                inst, oracle = _instance(cfg, rig, plan, round_settings, planned["problem"])
                 timings["instance_s"] = time.perf_counter() - t0
                 _check_joints(oracle, st, rows, acts, ids)
                 from pipeline.round.move_file import load_book

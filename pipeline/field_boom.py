@@ -5,7 +5,7 @@
 The as-drilled loop (docs/calibration.md, "The loop: plan, drill, log, calibrate") needs a boom that is not its
 nominal model: the nominal boom with error twists of an error level (``field_boom.level``, drawn with
 ``field_boom.seed``, as the calibration study draws its true boom), written as a model file
-(``execution.true_boom_model=`` of ``execute`` drills through it), and ``field_boom.poses`` poses of it measured
+(``execute.true_boom_model=`` of ``execute`` drills through it), and ``field_boom.poses`` poses of it measured
 with the sensor's noise (joints uniform over their ranges), written as the measurement file
 ``python -m pipeline.calibrate measurements=`` fits. Deterministic: the same settings write the same files.
 """

@@ -4,7 +4,7 @@
     python -m pipeline.move_benchmark rig=twin move_benchmark.pairs=1000  # the 1000
 
 Solves the plan (``plan``, the demo face by default) by every boom of the rig (the reach table, the
-others at park; network ``solve.network``, hybrid ``solver``), then measures (pipeline/benchmarks/moves.py):
+others at park; network ``solve.network``, hybrid ``solver``), then measures (pipeline/rig_benchmarks/moves.py):
 moves between random pairs of each boom's ok holes with every other boom standing at a random ok hole
 of its own; chained against independent solutions (summed move time); boom-boom clearances per second.
 Writes ``paths.data/benchmark/moves_<rig>.csv`` (one row per pair), ``redundancy_<rig>.csv`` and
@@ -20,18 +20,17 @@ import time
 from omegaconf import DictConfig
 
 from pipeline.assembly.rig import composed_rig
-from pipeline.benchmarks.moves import MoveBenchmarkSettings, distance_rate, move_benchmark, redundancy
 from pipeline.calibration.model_file import model_setting
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError
 from pipeline.core.io import write_csv, write_json
 from pipeline.core.settings import coerce, parse
 from pipeline.core.stage import run_stage, stage_main
-from pipeline.data.holes import joint_box
 from pipeline.motion.timing import rig_motions
 from pipeline.plans.navigation import NavigationSettings, navigation_params
-from pipeline.plans.reach import reach_table, rig_solvers
+from pipeline.plans.reach import solved_reach
 from pipeline.plans.read import read_plan_in_rig_frame
+from pipeline.rig_benchmarks.moves import MoveBenchmarkSettings, distance_rate, move_benchmark, redundancy
 from pipeline.solvers.hybrid import HybridSettings
 from pipeline.solvers.network_start import first_starts, network_source
 from pipeline.tracking.runs import TrackingSettings, stage_run
@@ -59,9 +58,8 @@ def run(cfg: DictConfig) -> dict:
         mlrun.log_params({"plan": str(plan_path), "rig": rig.name, "move_benchmark": as_dict(cfg.move_benchmark),
                           "solver": as_dict(cfg.solver), "network": str(source), **navigation_params(plan)})
         first_start = first_starts(source, network, tracking.uri, "solve.model_uri")
-        start_box = joint_box(rig.booms[0].boom, None if box is None else as_dict(box))
-        solvers = rig_solvers(rig, first_start, hybrid, start_box)
-        reach = reach_table(plan, rig, solvers, f"hybrid ({network})")
+        solvers, reach = solved_reach(plan, rig, first_start, hybrid, None if box is None else as_dict(box),
+                                      f"hybrid ({network})")
         rates = distance_rate(rig, settings)
         saved = redundancy(rig, plan, reach, solvers, limits)
         started = time.perf_counter()

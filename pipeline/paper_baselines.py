@@ -34,9 +34,10 @@ from pipeline.tracking.runs import TrackingSettings, stage_run
 
 
 def run(cfg: DictConfig) -> dict:
-    papers, tracking = cfg.benchmark.papers, TrackingSettings.from_config(cfg.tracking)
-    parse(PapersSettings, OmegaConf.to_container(papers, resolve=True), "benchmark.papers")  # sizes before any work
-    rbf_specs = {m: OmegaConf.to_container(cfg.benchmark.solvers[m], resolve=True) for m in papers.rbf.methods}
+    papers, tracking = cfg.solver_benchmark.papers, TrackingSettings.from_config(cfg.tracking)
+    # sizes before any work
+    parse(PapersSettings, OmegaConf.to_container(papers, resolve=True), "solver_benchmark.papers")
+    rbf_specs = {m: OmegaConf.to_container(cfg.solver_benchmark.solvers[m], resolve=True) for m in papers.rbf.methods}
     for m, spec in rbf_specs.items():  # the entries' sizes, before any input is read
         check_entry(m, spec)
     data = project_path(cfg.paths.data)

@@ -9,7 +9,7 @@ missing ``HoleName``, points local to an ``IR:TMatrix``), both in the plan's fra
 length_err_m, within``), ``_quality.json`` (the share within tolerance, mean / p95 / max deviations, the plan's
 holes the log lacks and the log's holes the plan lacks, the files' checksum states) and ``_quality.png`` (the face
 coloured by deviation), published as one set, and an MLflow run. ``strict=true``: exit 1 unless every planned hole
-was drilled within tolerance (:mod:`pipeline.plans.as_drilled`).
+was drilled within tolerance (:mod:`pipeline.plans.deviations`).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from pipeline.core.io import require_writable
 from pipeline.core.settings import coerce, parse, rule
 from pipeline.core.stage import run_stage, stage_main
 from pipeline.evaluation.plots import deviation_figure
-from pipeline.plans.as_drilled import deviations, face_coordinates
+from pipeline.plans.deviations import deviations, face_coordinates
 from pipeline.plans.drpqual import read_quality_log
 from pipeline.plans.output import solution_paths, write_solution_set
 from pipeline.plans.read import read_plan

@@ -1,4 +1,4 @@
-"""Stage ``schedule``: the round of a rig, every boom at once, no two booms closer than d_boom (issue 20).
+"""Stage ``schedule``: the round of a rig, every boom at once, no two booms closer than d_boom.
 
     python -m pipeline.schedule plan=data/plans/demo_face.csv rig=twin
     python -m pipeline.schedule plan=round_42.xml rig=trio out=rounds/
@@ -12,14 +12,14 @@ and its baselines, and writes beside the plan (or into ``out``, a folder or a ``
 
 - ``<stem>_round.csv``: hole_id, boom, order, t_start, t_end, q1 .. q8, status, reason (every plan
   hole once, unreadable rows as ``invalid``);
-- ``<stem>_trajectory.csv``: the spec's trajectory file, every boom park to park;
+- ``<stem>_trajectory.csv``: the reference's trajectory file, every boom park to park;
 - ``<stem>_round.json``: makespan, lower bound, baselines, clearance, per boom times, moves by kind; the
   plan's MD5 (``plan_md5``) and what the round was planned with (``planned_with``: the rig, its booms and
   the tunnel, a profile by its file's MD5), which ``execute`` and the independent checker hold theirs to;
 - ``<stem>_round_face.png``, ``<stem>_round_gantt.png``, ``<stem>_round_replay.html``;
 - for every rig (``schedule.interlocks``; one boom has no interlock, the file holds its header), the round
-  executed by events (spec section 8,
-  :mod:`pipeline.execution.robust`): ``<stem>_actions.csv``, ``<stem>_interlocks.csv``,
+  executed by events (docs/reference.md section 8,
+  :mod:`pipeline.events.robust_round`): ``<stem>_actions.csv``, ``<stem>_interlocks.csv``,
   ``<stem>_round_executed.png`` and ``<stem>_round_executed_replay.html``; the trajectory is then the
   round re-timed by its interlocks, and the JSON's ``execution`` holds the drawn rounds' summary.
 
@@ -51,19 +51,19 @@ from pipeline.core.errors import ConfigError, StrictCheckFailed
 from pipeline.core.io import file_md5, require_writable, save_figure, write_csv, write_text
 from pipeline.core.settings import SEED_MAX, RuntimeSettings, coerce, parse, rule
 from pipeline.core.stage import run_stage, stage_main
-from pipeline.data.holes import joint_box
-from pipeline.execution.montecarlo import parse_execution
-from pipeline.execution.robust import robust_finish
+from pipeline.events.draws import parse_draws
+from pipeline.events.robust_round import robust_finish
 from pipeline.motion.timing import rig_motions
 from pipeline.plans.model import COLLAR
 from pipeline.plans.navigation import NavigationSettings, navigation_metrics, navigation_params
-from pipeline.plans.reach import reach_table, rig_solvers
+from pipeline.plans.reach import solved_reach
 from pipeline.plans.read import read_plan_in_rig_frame
 from pipeline.plans.solutions import spreadsheet_safe
-from pipeline.round.from_plan import schedule_round
+from pipeline.round.from_plan import round_problem, schedule_round
 from pipeline.round.output import round_paths, write_round_set
 from pipeline.round.postures import round_postures
 from pipeline.round.problem import precedence_indices
+from pipeline.round.problem_file import save_problem
 from pipeline.round.settings import parse_round
 from pipeline.solvers.hybrid import HybridSettings
 from pipeline.solvers.network_start import first_starts, network_source
@@ -94,7 +94,7 @@ class ScheduleSettings:
     bench_seed: int = field(default=0, metadata=rule(ge=0, le=SEED_MAX))
     strict: bool = False  # true: exit 1 (after writing the set) on conflicts left, failed moves, the fallback,
     # or a round the interlocks cannot make robust
-    interlocks: bool = True  # the round executed by events: actions, interlocks, draws (pipeline.execution)
+    interlocks: bool = True  # the round executed by events: actions, interlocks, draws (pipeline.events)
 
     def __post_init__(self):
         for k, face in enumerate(self.bench_faces):
@@ -127,7 +127,7 @@ def run(cfg: DictConfig) -> dict:
     if settings.benchmark:
         return run_benchmark(cfg, settings)
     round_settings = parse_round(as_dict(cfg.round), "round")
-    execution = parse_execution(as_dict(cfg.execution), "execution")
+    draw_settings = parse_draws(as_dict(cfg.draws), "draws")
     hybrid = parse(HybridSettings, cfg.solver, "solver")
     tracking = TrackingSettings.from_config(cfg.tracking)
     runtime = RuntimeSettings.from_config(cfg)
@@ -153,19 +153,18 @@ def run(cfg: DictConfig) -> dict:
     with stage_run(tracking, f"schedule-{plan_path.stem}-{rig.name}",
                    {"stage": "schedule", "plan": str(plan_path), "rig": rig.name}) as mlrun:
         mlrun.log_params({"plan": str(plan_path), "rig": rig.name, "schedule": asdict(settings),
-                          "round": as_dict(cfg.round), "execution": as_dict(cfg.execution),
+                          "round": as_dict(cfg.round), "draws": as_dict(cfg.draws),
                           "motion": as_dict(cfg.motion), "solver": as_dict(cfg.solver), **navigation_params(plan)})
         mlrun.log_dataset(plan.holes, plan_path, "drill plan")
 
         first_start = first_starts(source, settings.network, tracking.uri, "schedule.model_uri")
         say, close = _progress(runtime.progress)
         try:
-            solvers = rig_solvers(rig, first_start, hybrid,
-                                  joint_box(rig.booms[0].boom, None if box is None else as_dict(box)))
-            reach = reach_table(plan, rig, solvers, "hybrid")
+            solvers, reach = solved_reach(plan, rig, first_start, hybrid, None if box is None else as_dict(box),
+                                          "hybrid")
             say(f"reach table: {len(plan)} holes x {len(rig)} booms")
             postures = round_postures(plan, rig, solvers, reach, motions, round_settings)
-            finish = robust_finish(execution, say) if settings.interlocks else None
+            finish = robust_finish(draw_settings, say) if settings.interlocks else None
             res = schedule_round(rig, plan, reach, motions, round_settings, settings.baselines,
                                  settings.check_moves, say, finish, postures)
         finally:
@@ -181,8 +180,10 @@ def run(cfg: DictConfig) -> dict:
             summary["execution"] = executed.summary
             timings.update({f"interlocks.{k}": v for k, v in executed.extra["timings"].items()})
         collars = plan.holes[COLLAR].to_numpy(float)
+        problem = round_problem(rig, plan, reach, table, list(rig.booms[0].boom.joint_names))
         writers = {"round": lambda p: write_csv(spreadsheet_safe(table), p),
-                   "trajectory": lambda p: write_csv(res.trajectory, p)}
+                   "trajectory": lambda p: write_csv(res.trajectory, p),
+                   "problem": lambda p: save_problem(problem, p)}  # what execute re-plans a handed-on round on
         if settings.figures:
             from pipeline.round.figures import face_figure, gantt_figure
 
@@ -204,7 +205,7 @@ def run(cfg: DictConfig) -> dict:
             writers["actions"] = lambda p: write_csv(spreadsheet_safe(executed.actions), p)
             writers["interlocks"] = lambda p: write_csv(executed.interlocks, p)
             if settings.figures:
-                from pipeline.execution.robust import realised_makespans_figure
+                from pipeline.events.robust_round import realised_makespans_figure
 
                 realised_fig = realised_makespans_figure(executed, f"rig {rig.name}: the round executed by events")
                 writers["executed"] = lambda p: save_figure(realised_fig, p)
@@ -274,13 +275,13 @@ def round_problems(summary: dict) -> list[str]:
 
 
 def run_benchmark(cfg: DictConfig, settings: ScheduleSettings) -> dict:
-    """``schedule.benchmark=true``: :func:`pipeline.benchmarks.round_faces.round_benchmark` into
+    """``schedule.benchmark=true``: :func:`pipeline.rig_benchmarks.round_faces.round_benchmark` into
     ``paths.data/benchmark/round_benchmark.{csv,md}`` and one MLflow run."""
-    from pipeline.benchmarks.round_faces import markdown, round_benchmark
+    from pipeline.rig_benchmarks.round_faces import markdown, round_benchmark
 
     rigs = benchmark_rigs(cfg, settings.bench_rigs)  # every rig, boom model and motion checked before any work
     round_settings = parse_round(as_dict(cfg.round), "round")
-    execution = parse_execution(as_dict(cfg.execution), "execution") if settings.interlocks else None
+    draw_settings = parse_draws(as_dict(cfg.draws), "draws") if settings.interlocks else None
     hybrid = parse(HybridSettings, cfg.solver, "solver")
     tracking = TrackingSettings.from_config(cfg.tracking)
     folder = require_writable(project_path(cfg.paths.data) / "benchmark", "paths.data/benchmark")
@@ -292,10 +293,10 @@ def run_benchmark(cfg: DictConfig, settings: ScheduleSettings) -> dict:
 
     with stage_run(tracking, "schedule-benchmark", {"stage": "schedule", "mode": "benchmark"}) as mlrun:
         mlrun.log_params({"schedule": asdict(settings), "round": as_dict(cfg.round), "solver": as_dict(cfg.solver),
-                          "execution": as_dict(cfg.execution)})
+                          "draws": as_dict(cfg.draws)})
         table = round_benchmark(settings.bench_faces, rigs, hybrid, round_settings, first_start, settings.bench_seed,
                                 lambda m: log.info("%s", m), folder / "rounds", None if box is None else as_dict(box),
-                                execution)
+                                draw_settings)
         write_csv(table, folder / "round_benchmark.csv")
         write_text(markdown(table), folder / "round_benchmark.md")
         mlrun.log_table(table, "round_benchmark.json")
@@ -313,7 +314,7 @@ def benchmark_rigs(cfg: DictConfig, names) -> list:
     """The benchmark's rigs by name, each in the drift its file selects, its booms from the composed ``boom``
     and ``boom_model`` (as :func:`pipeline.assembly.rig.composed_rig`), its motion from ``motion``, and the
     composed boom's safety model in that drift for designing the faces."""
-    from pipeline.benchmarks.round_faces import BenchRig
+    from pipeline.rig_benchmarks.round_faces import BenchRig
 
     if cfg.get("boom_models"):
         raise ConfigError(f"boom_models = {as_dict(cfg.boom_models)!r}: names the booms of one rig; the round "

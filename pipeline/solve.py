@@ -50,7 +50,7 @@ from pipeline.plans.iredes_frames import TMATRIX_TOL
 from pipeline.plans.model import COLLAR
 from pipeline.plans.navigation import NavigationSettings, navigation_metrics, navigation_params
 from pipeline.plans.output import solution_paths, write_solution_set
-from pipeline.plans.reach import reach_figure, reach_table, rig_solvers
+from pipeline.plans.reach import reach_figure, solved_reach
 from pipeline.plans.read import MAX_PLAN_MB, read_plan_in_rig_frame
 from pipeline.plans.solutions import CLEARANCE_COLUMNS, solution_frame, solved_holes, status_counts
 from pipeline.solvers.base import NetworkSolver
@@ -188,8 +188,7 @@ def solve_rig(cfg: DictConfig, rig, settings: SolveSettings, hybrid: HybridSetti
                           "boom_models": str(cfg.get("boom_models")), "plan_checksum": plan.checksum,
                           **navigation_params(plan)})
         network = first_starts(source, settings.network, tracking.uri, "solve.model_uri")  # per boom, checked
-        solvers = rig_solvers(rig, network, hybrid, joint_box(rig.booms[0].boom, None if box is None else as_dict(box)))
-        reach = reach_table(plan, rig, solvers, method)
+        _, reach = solved_reach(plan, rig, network, hybrid, None if box is None else as_dict(box), method)
         summary = {"rig": rig.name, "booms": rig.names, "invalid_rows": invalid_rows(plan), **reach.summary()}
         mlrun.log_metrics({**{k: v for k, v in summary.items() if isinstance(v, (int, float))},
                            **navigation_metrics(plan)})

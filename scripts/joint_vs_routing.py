@@ -12,11 +12,11 @@ of the moment: compare the rows of one run.
 import argparse
 import logging
 
-from pipeline.benchmarks.joint_vs_routing import joint_vs_routing, markdown
 from pipeline.core.config import as_dict, compose, project_path
 from pipeline.core.io import write_csv, write_text
 from pipeline.core.settings import parse
 from pipeline.core.stage import run_stage
+from pipeline.rig_benchmarks.joint_vs_routing import joint_vs_routing, markdown
 from pipeline.round.settings import parse_round
 from pipeline.schedule import ScheduleSettings, benchmark_rigs
 from pipeline.solvers.hybrid import HybridSettings

@@ -8,7 +8,7 @@ Omega_unsup for that drift (collars uniform in its profile less 0.2 m, x in 6-7 
 feed beam alone breaks a safety distance redrawn; seed 2026), solved by the benchmark's ``hybrid_compiled``
 (the distilled start network of paths.data/models, from ``dvc repro``): batched (holes/s, the median of
 repeats), then the first ``single`` holes one at a time on one thread (median, p95, p99 of the latency), as
-the benchmark stage measures it (pipeline.evaluation.benchmarking.measure). The network was trained in the
+the benchmark stage measures it (pipeline.evaluation.solver_benchmark.measure). The network was trained in the
 horseshoe: in a profile it is only the hybrid's start. One MLflow run (``profile-benchmark``) holds the table.
 """
 
@@ -23,7 +23,7 @@ from pipeline.assembly.build import build_safety, hole_sampling
 from pipeline.core.config import CONF_DIR, as_dict, compose, project_path
 from pipeline.core.settings import parse
 from pipeline.data.holes import joint_box, sample_holes
-from pipeline.evaluation.benchmarking import BenchmarkSettings, build_solvers, measure
+from pipeline.evaluation.solver_benchmark import BenchmarkSettings, build_solvers, measure
 from pipeline.solvers.hybrid import HybridSettings
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
@@ -41,7 +41,7 @@ def main(argv: list[str]) -> None:
     n = int(argv[0]) if argv else 20_000  # 5 000 left the batched rate varying by a third from run to run
     single = int(argv[1]) if len(argv) > 1 else 1000
     cfg = compose(argv[2:])
-    settings = parse(BenchmarkSettings, as_dict(cfg.benchmark), "benchmark")
+    settings = parse(BenchmarkSettings, as_dict(cfg.solver_benchmark), "benchmark")
     hybrid = parse(HybridSettings, cfg.solver, "solver")
     sampling = hole_sampling(cfg.holes)
     box = cfg.holes.sup.get("box")

@@ -21,7 +21,7 @@ import pandas as pd
 
 from pipeline import quality
 from pipeline.core.config import compose
-from pipeline.plans.as_drilled import deviations
+from pipeline.plans.deviations import deviations
 from pipeline.plans.drpqual import LOG_COLUMNS, read_quality_log, write_quality_log
 from pipeline.plans.model import COORDS
 from pipeline.plans.read import read_plan

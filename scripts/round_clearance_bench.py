@@ -29,9 +29,9 @@ from pathlib import Path
 import pandas as pd
 import torch
 
-from pipeline.benchmarks.round_faces import markdown, round_benchmark
 from pipeline.core.config import as_dict, compose
 from pipeline.core.settings import parse
+from pipeline.rig_benchmarks.round_faces import markdown, round_benchmark
 from pipeline.round.oracle import KinematicOracle
 from pipeline.round.settings import parse_round
 from pipeline.schedule import benchmark_rigs

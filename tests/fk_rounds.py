@@ -25,7 +25,7 @@ def boom_joints(n: int, seed: int, q7_deg: float, swing_deg=(-12.0, 12.0)) -> to
     return q
 
 
-# q7 that puts each boom's feed on its outer / inner side, by the sign of its base y (spec twin parks)
+# q7 that puts each boom's feed on its outer / inner side, by the sign of its base y (the twin rig's parks)
 def _q7(base_y: float, inner: bool) -> float:
     outer = 180.0 if base_y > 0 else 0.0
     return (outer + 180.0) % 360.0 if inner else outer

@@ -19,10 +19,10 @@ PACKAGE = "pipeline"
 # The layer order (docs/design.md, "Layers"): a module may import only from its own package or a
 # lower one. The stages are the modules pipeline/<stage>.py; one stage never imports another.
 LAYERS = ["core", "optim", "geometry", "data", "assembly", "learning", "solvers", "evaluation", "calibration",
-          "deploy", "plans", "motion", "round", "execution", "benchmarks", "tracking", "stages"]
-PRODUCT_PACKAGES = {"plans", "motion", "round", "execution", "benchmarks"}
-STUDY_STAGES = {"generate", "train", "evaluate", "benchmark", "paper_baselines", "report", "derive_box", "export",
-                "export_benchmark", "calibrate", "params", "dashboard", "distill", "field_boom"}
+          "deploy", "plans", "motion", "round", "events", "rig_benchmarks", "tracking", "stages"]
+PRODUCT_PACKAGES = {"plans", "motion", "round", "events", "rig_benchmarks"}
+STUDY_STAGES = {"generate", "train", "evaluate", "solver_benchmark", "paper_baselines", "report", "derive_box",
+                "export", "export_benchmark", "calibrate", "params", "dashboard", "distill", "field_boom"}
 PRODUCT_STAGES = {"solve", "demo_face", "move_benchmark", "schedule", "execute", "quality"}
 
 

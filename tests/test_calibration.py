@@ -1,4 +1,4 @@
-"""Kinematic error compensation (issue 13, paper 004): error model, measurements, SSA, networks,
+"""Kinematic error compensation (paper 004): error model, measurements, SSA, networks,
 identification, model files and the calibrate stage."""
 
 import math

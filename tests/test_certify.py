@@ -1,4 +1,4 @@
-"""The checker's exact certification of a round's robustness (issue 55, ``scripts/round_check/certify.py``):
+"""The checker's exact certification of a round's robustness (``scripts/round_check/certify.py``):
 every pair of segments of two booms that some drilling durations can make overlap keeps d_boom between
 all their configurations, whatever the draws.
 
@@ -339,7 +339,7 @@ def test_ordered_segments_never_overlap_and_unordered_ones_can(tmp_path):
 # -- a round planned by the pipeline, its interlocks deleted one by one --------------------------------
 
 STAGE = [s for s in CHECK_STAGE if s not in ("schedule.interlocks=false", "round.postures=1")] + [
-    "execution.draws=20"]
+    "draws.count=20"]
 
 
 @pytest.fixture(scope="module")
@@ -521,7 +521,7 @@ def test_a_planned_round_passes_and_each_deleted_interlock_is_caught(planned, tm
                 shown[k] = (entry["segments"], float(d.min()))
                 assert abs(d[250] - entry["distance_m"]) < 1e-3  # the checker's own distance, to 1 mm
                 break
-        nominal_kept = not any(m.startswith("execution with the spec durations") for m in report["violations"])
+        nominal_kept = not any(m.startswith("execution with the model durations") for m in report["violations"])
         if nominal_kept:  # the plan still runs as planned: only its robustness is at stake, and it is broken
             assert k in shown, (k, [e["segments"] for e in cert["violating"]])
     assert shown, "no deletion shown real"

@@ -1,7 +1,7 @@
-"""scripts/check_round.py on executed rounds (issue 27, spec section 8): actions and interlocks made BY
+"""scripts/check_round.py on executed rounds (docs/reference.md section 8): actions and interlocks made BY
 HAND here from the small twin round's trajectory file (naive interlocks: every pair of actions of the two
 booms that do not overlap in the plan ordered as planned), so these tests need nothing of the planner's
-execution code. The naive set passes every draw, but not the exact certification (issue 55: the plan's
+execution code. The naive set passes every draw, but not the exact certification (the plan's
 two simultaneous moves are apart only at their planned relative timing); each planted fault fails with
 its exit code and message; the execution rule and the episode floors agree with hand values and brute
 force. The certification itself: tests/test_certify.py."""
@@ -89,7 +89,7 @@ def _fails(base, traj, *needles, code=1, extra=("--execute", "4")):
 def _only_certified(report, acts):
     """The set's only violations are the certification's, and they are the naive set's known gap: L's move
     out of its first hole and R's first move into its own (with R standing where that move left it, which
-    the interlocks make wait for L's move), both started by the end of L's first drill, unordered (issue 55)."""
+    the interlocks make wait for L's move), both started by the end of L's first drill, unordered."""
     assert report["violations"] and all(v.startswith("certified: ") for v in report["violations"]), \
         report["violations"][:5]
     cert = report["execution"]["certified"]
@@ -113,7 +113,7 @@ def _first_wait(acts):
 
 def test_the_good_set_passes_every_draw_but_not_the_certification(base):
     """Every draw is clear; the exact certification is not: the naive set leaves the plan's simultaneous
-    moves unordered, apart only at their planned relative timing (issue 55; they start on the same event, so
+    moves unordered, apart only at their planned relative timing (they start on the same event, so
     no drilling time moves them apart: only a move taking other than its planned time would)."""
     rc, report, err = _run(base, _set(base, "good"), "--execute", "30", "--seed", "3")
     assert rc == 1, (err, report and report["violations"][:5])
@@ -514,7 +514,7 @@ def test_a_realised_actions_file_whose_drill_disagrees_with_the_trajectory(base)
     c01 = _hole(base[2], "L", 1)
     traj, _ = _realised(base, "real_actions", {("L", 1): 1.3})
 
-    def planned_duration(a):  # the executor wrote the planned drilling time, not the realised one
+    def planned_duration(a):  # the execute stage wrote the planned drilling time, not the realised one
         k = a.index[(a["boom"] == "L") & (a["action"] == 1)][0]
         a.loc[k, "t_end"] = a.loc[k, "t_start"] + (c01["t_end"] - c01["t_start"])
         return a
@@ -526,7 +526,7 @@ def test_a_realised_actions_file_whose_drill_disagrees_with_the_trajectory(base)
 
 
 def test_an_interlock_broken_by_the_realised_times(base):
-    """The executor let R's first move start at its planned time, not waiting for L's stretched drill."""
+    """The execute stage let R's first move start at its planned time, not waiting for L's stretched drill."""
     tmp, _, acts, locks = base
     wait = _first_wait(acts)
     ignored = locks[~((locks["boom"] == "R") & (locks["action"] == 0) & (locks["after_boom"] == "L")

@@ -1,6 +1,6 @@
-"""scripts/check_round.py, the independent round checker (issue 26): it passes a good round and fails
+"""scripts/check_round.py, the independent round checker: it passes a good round and fails
 each planted fault with the right message and exit code; it imports nothing of ``pipeline``; its
-geometry agrees with independent values (the spec's test vectors, brute force over dense points)."""
+geometry agrees with independent values (the reference's test vectors, brute force over dense points)."""
 
 import json
 import math
@@ -208,7 +208,7 @@ def test_a_timestamp_moved_back_one_second(good):
         t.loc[_hole_rows(t, "L", 0)[2], "t"] -= 1.0  # the retract row: drilling 1 s short, retraction 1 s long
         return t
 
-    _fails(good, _plant(good, "back", back), "the spec time for its")
+    _fails(good, _plant(good, "back", back), "the model time for its")
 
 
 def test_a_boom_moving_between_drill_and_retract(good):
@@ -506,7 +506,7 @@ def test_settings_follow_the_composed_config():
     np.testing.assert_allclose(st.booms[0].park, np.radians([0, 0, 0, 0, 0, 0, 180, 0]) + [0, 0, 3.0, 0, 0, 0, 0, 1.0])
 
 
-# -- the checker's own input problems (issue 55): exit 2 naming them; its own failure exit 3 ----------------
+# -- the checker's own input problems: exit 2 naming them; its own failure exit 3 ----------------
 
 @pytest.mark.parametrize("extra, needle", [
     (["--seed", "-1"], "--seed = -1: must be a whole number in 0..4294967295"),

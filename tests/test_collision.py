@@ -204,7 +204,7 @@ def _dense(safety, n):
 
 
 def test_the_exact_check_finds_the_minimum_between_the_16_points():
-    """The case the independent round checker found (issue 26): 16 evenly spaced points keep the wall
+    """The case the independent round checker found: 16 evenly spaced points keep the wall
     distance by 0.55 mm, the capsule breaks it by 0.78 mm. The exact check finds the capsule's minimum:
     never above a 4 001-point sampling of the axis, and at the move's lowest instant equal to it to 1e-6 m
     (the sampling's own error there is under 1e-7 m: the two agree to 8e-9 m)."""

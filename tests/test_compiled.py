@@ -1,5 +1,5 @@
 """The compiled kinematics and solver held to the torch ones: the same frames, pose6, Jacobians and
-clearances (spec vectors, 1 000 random joints, float64 rounding level), the same network output, and
+clearances (reference vectors, 1 000 random joints, float64 rounding level), the same network output, and
 the same statuses as the torch hybrid. No timing here: speed is shown by the benchmark."""
 
 import math
@@ -30,7 +30,7 @@ WORKING_BOX = {"q1": [-17.37, 28.48], "q2": [-9.73, 38.57], "q3": [3.07, 4.59], 
 
 def test_spec_vectors_through_the_compiled_chain(jumbo8):
     _, pose, _ = chain_values(ChainArrays.from_boom(jumbo8), np.array(SPEC_Q))
-    assert np.abs(pose - np.array(SPEC_POSE)).max() < 1e-6  # the spec prints 6 decimals
+    assert np.abs(pose - np.array(SPEC_POSE)).max() < 1e-6  # the reference prints 6 decimals
 
 
 @pytest.mark.parametrize("boom_name", ["jumbo8", "huang9", "rescue6"])

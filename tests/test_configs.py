@@ -7,7 +7,6 @@ import pytest
 from omegaconf import OmegaConf
 
 from pipeline.assembly.build import build_safety, hole_sampling
-from pipeline.benchmarks.moves import MoveBenchmarkSettings
 from pipeline.calibration.study import CalibrationSettings
 from pipeline.core.config import CONF_DIR, compose
 from pipeline.core.errors import ConfigError
@@ -16,9 +15,9 @@ from pipeline.data.hole_sets import SupervisedSet
 from pipeline.deploy.package import ExportSettings
 from pipeline.derive_box import DeriveBoxSettings
 from pipeline.evaluate import EvalSettings
-from pipeline.evaluation.benchmarking import BenchmarkSettings
+from pipeline.evaluation.solver_benchmark import BenchmarkSettings
+from pipeline.events.draws import parse_draws
 from pipeline.execute import parse_execute
-from pipeline.execution.montecarlo import parse_execution
 from pipeline.field_boom import FieldBoomSettings
 from pipeline.generate import SetSize, TestGroups, supervised_sets
 from pipeline.learning.distillation import DistillSettings
@@ -26,6 +25,7 @@ from pipeline.learning.models import ModelSettings
 from pipeline.learning.training import MethodSettings, TrainSettings
 from pipeline.plans.navigation import NavigationSettings
 from pipeline.quality import QualitySettings
+from pipeline.rig_benchmarks.moves import MoveBenchmarkSettings
 from pipeline.round.settings import parse_round
 from pipeline.schedule import ScheduleSettings
 from pipeline.solve import SolveSettings, check_batch
@@ -70,7 +70,7 @@ def check_all_groups(cfg) -> None:
     for cls, key in {**NODES, **PRODUCT_NODES}.items():
         parse(cls, node(cfg, key), key)
     parse_round(node(cfg, "round"), "round")  # schedule, execute
-    parse_execution(node(cfg, "execution"), "execution")
+    parse_draws(node(cfg, "draws"), "draws")
     parse_execute(cfg)
     check_batch(parse(SolveSettings, node(cfg, "solve"), "solve"), parse(HybridSettings, node(cfg, "solver"), "solver"))
     TrackingSettings.from_config(cfg.tracking)
@@ -157,7 +157,7 @@ def test_every_settings_default_equals_its_conf_value(cls):
     ("model.activation=swish", r"model.activation = 'swish': expected one of"),
     ("tracking.enabled=maybe", r"tracking.enabled = 'maybe': expected true or false"),
     ("eval.timing_repeats=0", r"eval.timing_repeats = 0: must be >= 1"),
-    ("benchmark.holes=-1", r"benchmark.holes = -1: must be >= 1"),
+    ("solver_benchmark.holes=-1", r"solver_benchmark.holes = -1: must be >= 1"),
     ("solver.max_iters=0", r"solver.max_iters = 0: must be >= 1"),
     ("solver.prefer=fast", r"solver.prefer = 'fast': expected one of"),
     ("runtime.threads=0", r"runtime.threads = 0: must be >= 1"),
@@ -169,7 +169,7 @@ def test_every_settings_default_equals_its_conf_value(cls):
     ("calibration.network.trainer=adam", r"trainer in \('lm', 'gd'\) required"),
     ("derive_box.holes=10", r"derive_box.holes = 10: must be >= 100"),
     ("holes.unsup.size=0", r"holes.unsup.size = 0: must be >= 1"),
-    # issue 55: every size, count, duration and iteration budget has an upper bound, refused by name before any
+    # every size, count, duration and iteration budget has an upper bound, refused by name before any
     # work (a huge value ended in an allocation traceback after minutes); each bound is stated in its conf file
     ("train.batch_size=100000000", r"train.batch_size = 100000000: must be <= 65536"),
     ("train.steps=1e9", r"train.steps = 1000000000: must be <= 10000000"),
@@ -198,24 +198,32 @@ def test_every_settings_default_equals_its_conf_value(cls):
     ("solve.max_plan_mb=1e12", r"solve.max_plan_mb = 1000000000000.0: must be <= 4096"),
     ("solve.iredes.max_text=1e12", r"solve.iredes.max_text = 1000000000000: must be <= 268435456"),
     ("eval.timing_repeats=1e6", r"eval.timing_repeats = 1000000: must be <= 1000"),
-    ("benchmark.holes=1e9", r"benchmark.holes = 1000000000: must be <= 1000000"),
-    ("benchmark.groups=[1,1000]", r"benchmark.groups = 1000: must be <= 100"),
-    ("benchmark.single=1e9", r"benchmark.single = 1000000000: must be <= 10000"),
-    ("benchmark.reference_ok_sample=1e9", r"benchmark.reference_ok_sample = 1000000000: must be <= 100000"),
-    ("benchmark.solvers.rbf.samples=1e6", r"benchmark.solvers.rbf.samples = 1000000: must be <= 20000"),
-    ("benchmark.solvers.pso.population=1e9", r"benchmark.solvers.pso.population = 1000000000: must be <= 10000"),
-    ("benchmark.solvers.ceopso.iterations=1e9", r"benchmark.solvers.ceopso.iterations = 1000000000: must be <= 10000"),
-    ("+benchmark.solvers.ga.grid=100", r"benchmark.solvers.ga.grid = 100: must be <= 10"),
-    ("benchmark.solvers.ga.generations=1e7", r"benchmark.solvers.ga.generations = 10000000: must be <= 10000"),
-    ("benchmark.solvers.nm.restarts=1e6", r"benchmark.solvers.nm.restarts = 1000000: must be <= 1000"),
-    ("benchmark.solvers.hybrid.single=1e9", r"benchmark.solvers.hybrid.single = 1000000000: must be <= 10000"),
-    ("benchmark.solvers.nm_coupled.max_holes=1e9", r"solvers.nm_coupled.max_holes = 1000000000: must be <= 1000000"),
-    ("benchmark.solvers.rbf.seed=abc", r"benchmark.solvers.rbf.seed = 'abc': expected an integer"),
-    ("benchmark.papers.pso.runs=1e9", r"benchmark.papers.pso.runs = 1000000000: must be <= 10000"),
-    ("benchmark.papers.pso.populations=[200,1e9]", r"benchmark.papers.pso.populations = 1000000000: must be <= 10000"),
-    ("benchmark.papers.pso.checkpoints=[50,500]", r"benchmark.papers.pso.checkpoints\[1\] = 500: beyond"),
-    ("benchmark.papers.ga.generations=1e9", r"benchmark.papers.ga.generations = 1000000000: must be <= 10000"),
-    ("benchmark.papers.rbf.groups=[1,1000]", r"benchmark.papers.rbf.groups = 1000: must be <= 100"),
+    ("solver_benchmark.holes=1e9", r"solver_benchmark.holes = 1000000000: must be <= 1000000"),
+    ("solver_benchmark.groups=[1,1000]", r"solver_benchmark.groups = 1000: must be <= 100"),
+    ("solver_benchmark.single=1e9", r"solver_benchmark.single = 1000000000: must be <= 10000"),
+    ("solver_benchmark.reference_ok_sample=1e9",
+     r"solver_benchmark.reference_ok_sample = 1000000000: must be <= 100000"),
+    ("solver_benchmark.solvers.rbf.samples=1e6", r"solver_benchmark.solvers.rbf.samples = 1000000: must be <= 20000"),
+    ("solver_benchmark.solvers.pso.population=1e9",
+     r"solver_benchmark.solvers.pso.population = 1000000000: must be <= 10000"),
+    ("solver_benchmark.solvers.ceopso.iterations=1e9",
+     r"solver_benchmark.solvers.ceopso.iterations = 1000000000: must be <= 10000"),
+    ("+solver_benchmark.solvers.ga.grid=100", r"solver_benchmark.solvers.ga.grid = 100: must be <= 10"),
+    ("solver_benchmark.solvers.ga.generations=1e7",
+     r"solver_benchmark.solvers.ga.generations = 10000000: must be <= 10000"),
+    ("solver_benchmark.solvers.nm.restarts=1e6", r"solver_benchmark.solvers.nm.restarts = 1000000: must be <= 1000"),
+    ("solver_benchmark.solvers.hybrid.single=1e9",
+     r"solver_benchmark.solvers.hybrid.single = 1000000000: must be <= 10000"),
+    ("solver_benchmark.solvers.nm_coupled.max_holes=1e9",
+     r"solvers.nm_coupled.max_holes = 1000000000: must be <= 1000000"),
+    ("solver_benchmark.solvers.rbf.seed=abc", r"solver_benchmark.solvers.rbf.seed = 'abc': expected an integer"),
+    ("solver_benchmark.papers.pso.runs=1e9", r"solver_benchmark.papers.pso.runs = 1000000000: must be <= 10000"),
+    ("solver_benchmark.papers.pso.populations=[200,1e9]",
+     r"solver_benchmark.papers.pso.populations = 1000000000: must be <= 10000"),
+    ("solver_benchmark.papers.pso.checkpoints=[50,500]", r"solver_benchmark.papers.pso.checkpoints\[1\] = 500: beyond"),
+    ("solver_benchmark.papers.ga.generations=1e9",
+     r"solver_benchmark.papers.ga.generations = 1000000000: must be <= 10000"),
+    ("solver_benchmark.papers.rbf.groups=[1,1000]", r"solver_benchmark.papers.rbf.groups = 1000: must be <= 100"),
     ("calibration.n_measurements=[10,1e7]", r"calibration.n_measurements = 10000000: must be <= 10000"),
     ("calibration.holdout=1e9", r"calibration.holdout = 1000000000: must be <= 100000"),
     ("calibration.ik.max_iters=1e9", r"calibration.ik.max_iters = 1000000000: must be <= 10000"),
@@ -252,7 +260,7 @@ def test_every_settings_default_equals_its_conf_value(cls):
     ("field_boom.poses=1e9", r"field_boom.poses = 1000000000: must be <= 100000"),
     ("round.postures=1e5", r"round.postures = 100000: must be <= 64"),
     ("safety.points_per_capsule=100000", r"safety.points_per_capsule = 100000: at most 256"),
-    ("execution.draws=1e9", r"execution.draws = 1000000000: must be <= 10000"),
+    ("draws.count=1e9", r"draws.count = 1000000000: must be <= 10000"),
     ("execute.replay_frames=1e9", r"execute.replay_frames = 1000000000: must be <= 10000"),
     ("tracking.busy_timeout_s=1e12", r"tracking.busy_timeout_s = 1000000000000.0: expected a number of seconds in "
                                      r"\[0, 86400\]"),
@@ -270,7 +278,8 @@ def test_bad_settings_are_named(override, pattern):
     ("+export.check.seeds=3", r"export.check.seeds: unknown setting; did you mean 'seed'\?"),
     ("+calibration.swarm.pso.popluation=9", r"swarm.pso.popluation: unknown setting; did you mean 'population'\?"),
     ("+runtime.thread=1", r"runtime.thread: unknown setting; did you mean 'threads'\?"),
-    ("+benchmark.solvers.hybrid.tol_mm=1", r"benchmark.solvers.hybrid.tol_mm: unknown setting.*solver group"),
+    ("+solver_benchmark.solvers.hybrid.tol_mm=1",
+     r"solver_benchmark.solvers.hybrid.tol_mm: unknown setting.*solver group"),
 ])
 def test_unknown_keys_are_refused_with_the_closest_known_one(override, pattern):
     cfg = compose([override])
@@ -278,7 +287,7 @@ def test_unknown_keys_are_refused_with_the_closest_known_one(override, pattern):
         check_all_groups(cfg)
         from pipeline.solvers import build_solver
 
-        spec = OmegaConf.to_container(cfg.benchmark.solvers.hybrid)
+        spec = OmegaConf.to_container(cfg.solver_benchmark.solvers.hybrid)
         build_solver("hybrid", spec, None, "models", {}, safety=object())
 
 
@@ -293,4 +302,4 @@ def test_quick_overrides_the_one_hybrid_source():
     cfg = compose(["experiment=quick"])
     assert parse(HybridSettings, cfg.solver, "solver").deep_starts == 16
     # the benchmark's entry holds no solver settings: its kind, its first start and how many holes it times alone
-    assert set(cfg.benchmark.solvers.hybrid) == {"kind", "init", "single"}
+    assert set(cfg.solver_benchmark.solvers.hybrid) == {"kind", "init", "single"}

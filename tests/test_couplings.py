@@ -59,7 +59,7 @@ def test_a_dependent_joint_outside_the_box_is_rejected_not_clamped(jumbo8):
 def test_the_study_and_the_benchmark_share_the_couplings():
     cfg = compose()
     study = as_dict(cfg.holes.sup_variants.coupled)["couplings"]
-    assert study == as_dict(cfg.benchmark.solvers.nm_coupled)["couplings"]
+    assert study == as_dict(cfg.solver_benchmark.solvers.nm_coupled)["couplings"]
 
 
 @pytest.mark.parametrize("rows, match", [

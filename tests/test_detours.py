@@ -1,4 +1,4 @@
-"""Detours of the round (issue 20): a used move that breaks self or tunnel clearance is re-planned,
+"""Detours of the round: a used move that breaks self or tunnel clearance is re-planned,
 and the oracle, the durations and the trajectory rows follow the detour.
 
 Independent values: the batched straight check against :func:`check_path` one move at a time, and

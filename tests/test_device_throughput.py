@@ -1,4 +1,4 @@
-"""The hybrid on any device (issue 30's GPU part) and its throughput benchmark.
+"""The hybrid on any device and its throughput benchmark.
 
 No GPU here: the hybrid is shown to make every tensor on its holes' device by solving CPU holes with
 torch's default device set to ``meta``, where any tensor made without the holes' device lands and then

@@ -71,7 +71,7 @@ def test_imitation_metrics_against_the_training_code_and_a_copy(teacher_and_hole
     (["distill.width=0"], "distill.width"),
     (["distill.activation=swish"], "distill.activation"),
     (["distill.lr_min=1.0"], "lr_min"),
-    # issue 55: a name is a file name in paths.data/models, never a path (it crashed); sizes have ranges
+    # a name is a file name in paths.data/models, never a path (it crashed); sizes have ranges
     (["distill.name=../escaped"], r"distill.name = '../escaped': expected a network name"),
     (["distill.name=sub/net"], r"distill.name = 'sub/net': expected a network name"),
     (["distill.teacher=../../etc/x"], r"distill.teacher = '../../etc/x': expected a network name"),

@@ -12,7 +12,7 @@ from conftest import CHECK_STAGE
 from pipeline.core.config import compose
 
 STAGE = [s for s in CHECK_STAGE if s not in ("schedule.interlocks=false", "round.postures=1")] + [
-    "execution.draws=20", "execute.replay=false", "execute.figures=false", "execute.monte_carlo=false"]
+    "draws.count=20", "execute.replay=false", "execute.figures=false", "execute.monte_carlo=false"]
 
 
 @pytest.mark.slow
@@ -25,7 +25,7 @@ def test_calibration_brings_the_drilled_round_onto_the_plan(tmp_path):
     plan = tmp_path / "small.csv"
     pd.read_csv(tmp_path / "data" / "plans" / "demo_face.csv").iloc[::11].to_csv(plan, index=False)
     made = field_boom.run(compose([*base, f"field_boom.folder={tmp_path}/loop"]))
-    true = f"execution.true_boom_model={made['true_boom']}"
+    true = f"execute.true_boom_model={made['true_boom']}"
 
     def drilled(name: str, *model: str) -> dict:
         """Plan (with ``model``), drill with the true boom, read the log back: the quality summary."""

@@ -1,6 +1,6 @@
-"""The executor stage and the interrupted round (spec section 8, issue 27).
+"""The execute stage and the interrupted round (docs/round.md, "The execute stage and an interrupted round").
 
-One small twin round with interlocks is planned once (six holes of the demo face); the executor runs it
+One small twin round with interlocks is planned once (six holes of the demo face); the execute stage runs it
 under drawn drilling times, interrupts one hole and hands the round on, and every executed set is
 judged by the independent checker (a separate process) as well as by these tests' own counts.
 """
@@ -19,7 +19,7 @@ from pipeline.core.errors import ConfigError, InputError
 
 # the round planned with its postures chosen (round.postures at its default): the hand-on rebuilds them
 STAGE = [s for s in CHECK_STAGE if s not in ("schedule.interlocks=false", "round.postures=1")] + [
-    "execution.draws=20", "execute.replay=false", "execute.figures=false"]
+    "draws.count=20", "execute.replay=false", "execute.figures=false"]
 
 
 @pytest.fixture(scope="module")
@@ -55,8 +55,8 @@ def first_drill(tmp, boom="L"):
 @pytest.mark.slow
 def test_rows_retimed_at_planned_times_are_the_planned_file(planned):
     """The realised-trajectory writer, given the planned times, gives back the planned trajectory file."""
-    from pipeline.execution.actions import actions_from_table, read_actions
-    from pipeline.execution.trajectory import action_rows, retimed
+    from pipeline.events.actions import actions_from_table, read_actions
+    from pipeline.events.trajectory import action_rows, retimed
 
     tmp, _ = planned
     traj = pd.read_csv(tmp / "small_trajectory.csv", keep_default_na=False)
@@ -149,8 +149,8 @@ def test_bad_settings_and_inputs_are_named(planned, tmp_path):
         run(planned, "execute.interrupt.hole=NOPE", "execute.interrupt.at_s=1", folder=tmp_path)
     with pytest.raises(ConfigError, match="both hole and at_s"):
         run(planned, f"execute.interrupt.hole={d['hole_id']}", folder=tmp_path)
-    with pytest.raises(ConfigError, match="execution.factors.NOPE"):
-        run(planned, "+execution.factors.NOPE=2.0", folder=tmp_path)
+    with pytest.raises(ConfigError, match="draws.factors.NOPE"):
+        run(planned, "+draws.factors.NOPE=2.0", folder=tmp_path)
     with pytest.raises(ConfigError, match="planned round .* is of rig 'twin'"):
         run(planned, "rig=trio", folder=tmp_path)
     with pytest.raises(InputError, match="not found"):
@@ -159,22 +159,22 @@ def test_bad_settings_and_inputs_are_named(planned, tmp_path):
 
 
 def test_fixed_factors_and_stalls_in_every_draw():
-    from pipeline.execution.actions import Actions
-    from pipeline.execution.montecarlo import draws, parse_execution
+    from pipeline.events.actions import Actions
+    from pipeline.events.draws import draws, parse_draws
 
     acts = Actions(("L",), ("a", "b", "c"), np.zeros(7, int), np.arange(7),
                    np.array(["move", "drill"] * 3 + ["move"]), np.array([-1, 0, -1, 1, -1, 2, -1]),
                    np.array([3, 0, 0, 1, 1, 2, 2]), np.array([0, 0, 1, 1, 2, 2, 3]), np.arange(7.0), np.arange(1, 8.0))
-    s = parse_execution({"draws": 200, "stall_p": 0.25, "stall_factor": 3.0, "factors": {"b": 2.5}})
+    s = parse_draws({"count": 200, "stall_p": 0.25, "stall_factor": 3.0, "factors": {"b": 2.5}})
     d = draws(acts, s)
     assert np.all(d.factors[:, 1] == 2.5)
     rand = d.factors[:200, [0, 2]]
     stalled = rand > 1.5  # uniform 0.7-1.5, a stall x3 lifts it to 2.1-4.5
     assert 0.15 < stalled.mean() < 0.35 and np.all(rand[stalled] >= 2.1 - 1e-12)
-    plain = draws(acts, parse_execution({"draws": 200}))
+    plain = draws(acts, parse_draws({"count": 200}))
     np.testing.assert_array_equal(plain.factors[:200, [0, 2]][~stalled], rand[~stalled])  # same seeded draws
     with pytest.raises(ConfigError, match="stall_p"):
-        parse_execution({"stall_p": 1.5})
+        parse_draws({"stall_p": 1.5})
 
 
 @pytest.mark.slow
@@ -189,11 +189,11 @@ def test_a_navigation_other_than_the_planned_one_is_refused_before_any_work(plan
 
 
 # ---------------------------------------------------------------------------------------------
-# Issue 55: execute runs only the files it planned, publishes only what was checked, refuses with a name
+# execute runs only the files it planned, publishes only what was checked, refuses with a name
 
 
 PLANNED = ("small_trajectory.csv", "small_actions.csv", "small_interlocks.csv", "small_round.csv",
-           "small_round.json", "small_moves.npz")
+           "small_round.json", "small_moves.npz", "small_problem.npz")
 
 
 def _copy_set(planned, dst):
@@ -267,7 +267,17 @@ TAMPERED = {  # what is edited -> (edit of the copy, the file the refusal names)
         "boom", df["boom"][::-1].to_numpy())), "small_round.csv"),
     "move book marked all-clear": (lambda d: _mark_all_clear(d / "small_moves.npz"), "small_moves.npz"),
     "the JSON's MD5": (lambda d: _md5_edited(d / "small_round.json"), "small_trajectory.csv"),
+    "problem's joints": (lambda d: _shift_problem(d / "small_problem.npz"), "small_problem.npz"),
 }
+
+
+def _shift_problem(path):
+    """The round's problem with boom L's joints moved 0.01 rad: a valid file, just not the planned one."""
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["joints"] = arrays["joints"] + 0.01
+    with open(path, "wb") as f:
+        np.savez_compressed(f, **arrays)
 
 
 @pytest.mark.slow
@@ -318,7 +328,7 @@ def test_malformed_planned_files_are_named_never_a_traceback(planned, tmp_path):
 
 @pytest.mark.slow
 def test_an_iredes_plan_is_executed_with_its_checks_running_on_its_holes(planned, tmp_path):
-    """The checker reads CSV plans only: for an IREDES plan the executor writes the holes it read, as CSV,
+    """The checker reads CSV plans only: for an IREDES plan the execute stage writes the holes it read, as CSV,
     into the set (``<stem>_executed_plan.csv``, in the JSON's ``plan_holes``) and the checks run on them.
 
     The set is the one schedule writes for the XML plan of the same holes (IREDES written with repr reads
@@ -411,15 +421,15 @@ def test_unknown_and_out_of_range_replan_round_settings_are_refused(planned, tmp
         run(planned, "+execute.replan_round.nope=1", folder=tmp_path)
     with pytest.raises(ConfigError, match=r"execute.replan_round.postures = 100000: must be <= 64"):
         run(planned, "+execute.replan_round.postures=100000", folder=tmp_path)
-    with pytest.raises(ConfigError, match=r"execution.high = 1e\+300: must be <= 100"):
-        run(planned, "execution.high=1e300", folder=tmp_path)
+    with pytest.raises(ConfigError, match=r"draws.high = 1e\+300: must be <= 100"):
+        run(planned, "draws.high=1e300", folder=tmp_path)
     assert not any(tmp_path.iterdir())
 
 
 @pytest.mark.parametrize("parse_name, node, match", [
-    ("execution", {"high": 1e300}, r"execution.high = 1e\+300: must be <= 100"),
-    ("execution", {"draws": 10**7}, r"execution.draws = 10000000: must be <= 10000"),
-    ("execution", {"factors": {"H1": 1e9}}, r"execution.factors.H1 = 1000000000.0: expected a factor in \(0, 100\]"),
+    ("draws", {"high": 1e300}, r"draws.high = 1e\+300: must be <= 100"),
+    ("draws", {"count": 10**7}, r"draws.count = 10000000: must be <= 10000"),
+    ("draws", {"factors": {"H1": 1e9}}, r"draws.factors.H1 = 1000000000.0: expected a factor in \(0, 100\]"),
     ("round", {"postures": 100000}, r"round.postures = 100000: must be <= 64"),
     ("round", {"posture_starts": 10**8}, r"round.posture_starts = 100000000: must be <= 1024"),
     ("round", {"sample_m": 1e-9}, r"round.sample_m = 1e-09: must be >= 0.001"),
@@ -427,17 +437,17 @@ def test_unknown_and_out_of_range_replan_round_settings_are_refused(planned, tmp
     ("round", {"sweep_more_bands_m": [1e300]}, r"round.sweep_more_bands_m\[0\] = 1e\+300"),
 ])
 def test_size_and_duration_settings_have_ranges(parse_name, node, match):
-    from pipeline.execution.montecarlo import parse_execution
+    from pipeline.events.draws import parse_draws
     from pipeline.round.settings import parse_round
 
-    parse = {"execution": parse_execution, "round": parse_round}[parse_name]
+    parse = {"draws": parse_draws, "round": parse_round}[parse_name]
     with pytest.raises(ConfigError, match=match):
         parse(node, parse_name)
 
 
 @pytest.mark.slow
 def test_the_as_drilled_log_is_where_the_true_boom_drilled(planned, tmp_path):
-    """execution.true_boom_model: every hole of the executed round logged (IREDES DRPQual, documented checksum),
+    """execute.true_boom_model: every hole of the executed round logged (IREDES DRPQual, documented checksum),
     its collar the true boom's forward kinematics at the joints the drill rows hold (plus the boom's base),
     within 0.01 mm, its toe the hole's length along the true drilling direction; read back by the quality stage
     it is off the plan at the field level. Without it, the log is the plan (the planning model drills it)."""
@@ -446,16 +456,16 @@ def test_the_as_drilled_log_is_where_the_true_boom_drilled(planned, tmp_path):
     from pipeline.assembly.build import load_boom
     from pipeline.calibration.error_model import BoomWithErrors, ErrorLevel, draw_errors
     from pipeline.calibration.model_file import save_model
-    from pipeline.plans.as_drilled import deviations
+    from pipeline.plans.deviations import deviations
     from pipeline.plans.drpqual import read_quality_log
 
     tmp, _ = planned
     jumbo8 = load_boom("jumbo8")
     twists = draw_errors(jumbo8, ErrorLevel(angle_deg=0.2, tilt_deg=0.2, offset_mm=5.0), seed=13)
     save_model(tmp_path / "true_boom.yaml", jumbo8, twists)
-    out = run(planned, "execute.draw=nominal", f"execution.true_boom_model={tmp_path / 'true_boom.yaml'}",
+    out = run(planned, "execute.draw=nominal", f"execute.true_boom_model={tmp_path / 'true_boom.yaml'}",
               "execute.monte_carlo=false", folder=tmp_path / "true")
-    assert out["as_drilled"]["holes"] == 6 and out["as_drilled"]["boom"].startswith("execution.true_boom_model=")
+    assert out["as_drilled"]["holes"] == 6 and out["as_drilled"]["boom"].startswith("execute.true_boom_model=")
     log = read_quality_log(tmp_path / "true" / "small_executed_quality.xml")
     assert log.checksum == "verified" and log.checksum_convention == "documented"
     traj = pd.read_csv(tmp_path / "true" / "small_executed_trajectory.csv", keep_default_na=False)
@@ -476,3 +486,41 @@ def test_the_as_drilled_log_is_where_the_true_boom_drilled(planned, tmp_path):
     assert nominal["as_drilled"]["boom"] == "the planning model"
     same = deviations(plan.reset_index(), read_quality_log(tmp_path / "nominal" / "small_executed_quality.xml").holes)
     assert same[1]["collar_dev_m_max"] < 1e-5 and same[1]["within"] == 6
+
+
+def test_the_problem_schedule_wrote_is_the_instance_a_new_reach_solve_gives(planned):
+    """What execute re-plans a handed-on round on, loaded from ``<stem>_problem.npz``, against the way it was
+    built before that file existed: the reach table solved again, each planned hole at its round-table joints."""
+    from pipeline.assembly.rig import composed_rig
+    from pipeline.core.config import as_dict
+    from pipeline.core.settings import parse
+    from pipeline.motion.timing import rig_motions
+    from pipeline.plans.reach import solved_reach
+    from pipeline.plans.read import read_plan
+    from pipeline.round.from_plan import planned_joints, problem_instance, round_instance
+    from pipeline.round.problem_file import load_problem
+    from pipeline.round.settings import parse_round
+    from pipeline.solvers.hybrid import HybridSettings
+    from pipeline.solvers.network_start import first_starts, network_source
+
+    tmp, overrides = planned
+    cfg = compose(overrides)
+    rig = composed_rig(cfg)
+    plan = read_plan(tmp / "small.csv")
+    settings, motions = parse_round(as_dict(cfg.round)), rig_motions(as_dict(cfg.motion), rig.booms)
+    names = list(rig.booms[0].boom.joint_names)
+    ids = plan.holes["hole_id"].astype(str).tolist()
+    problem = load_problem(tmp / "small_problem.npz", rig.names, ids, names)
+    loaded, _ = problem_instance(rig, plan, problem, motions, settings)
+
+    network = cfg.schedule.network  # null here: random starts, seeded, as schedule drew them
+    first = first_starts(network_source(tmp / "data", network, None), network, None, "schedule.model_uri")
+    box = cfg.holes.sup.get("box")
+    _, reach = solved_reach(plan, rig, first, parse(HybridSettings, cfg.solver, "solver"),
+                            None if box is None else as_dict(box), "hybrid")
+    table = pd.read_csv(tmp / "small_round.csv", keep_default_na=False)
+    solved, _, _ = round_instance(rig, plan, reach, motions, settings, planned_joints(rig, plan, reach, table, names))
+    np.testing.assert_array_equal(loaded.reach, solved.reach)
+    np.testing.assert_allclose(loaded.move_s, solved.move_s, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(loaded.phases, solved.phases, rtol=0, atol=1e-12)
+    assert loaded.reasons == solved.reasons and loaded.reach.any()

@@ -1,4 +1,4 @@
-"""The generate stage: what it writes, and that the holes obey spec section 3."""
+"""The generate stage: what it writes, and that the holes obey docs/reference.md section 3."""
 
 import json
 import math

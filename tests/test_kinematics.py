@@ -1,4 +1,4 @@
-"""Forward kinematics against the spec's test vectors and independent checks."""
+"""Forward kinematics against the reference's test vectors and independent checks."""
 
 import copy
 import math
@@ -35,7 +35,7 @@ def test_jumbo8_test_vectors(jumbo8):
 
 
 def test_jumbo8_printed_q_column_agrees_to_rounding(jumbo8):
-    # The 6-decimal q of the spec moves the pose by at most a few micrometres.
+    # The 6-decimal q of the reference moves the pose by at most a few micrometres.
     q = torch.tensor([[0.174533, 0.261799, 4.0, 0.523599, -0.349066, 0.174533, 0.785398, 2.0]], dtype=torch.float64)
     expected = torch.tensor([JUMBO8_VECTORS[1][1]], dtype=torch.float64)
     assert torch.allclose(jumbo8.pose6(q), expected, atol=1e-5, rtol=0)

@@ -1,4 +1,4 @@
-"""The move benchmark and the redundancy measurement (pipeline/benchmarks/moves.py) on a few demo-face holes:
+"""The move benchmark and the redundancy measurement (pipeline/rig_benchmarks/moves.py) on a few demo-face holes:
 shares and times consistent with the per-move rows, clear moves with non-negative clearances, the same seed
 giving the same sample, move sums against a hand loop over the time model, a one-boom rig refused."""
 
@@ -9,14 +9,14 @@ import torch
 
 from pipeline import demo_face, move_benchmark
 from pipeline.assembly.rig import build_rig
-from pipeline.benchmarks.moves import MoveBenchmarkSettings, distance_rate, path_time, redundancy
-from pipeline.benchmarks.moves import move_benchmark as run_moves
 from pipeline.core.errors import ConfigError
 from pipeline.motion.moves import KINDS
 from pipeline.motion.timing import move_time, rig_motions
 from pipeline.plans.csv_plan import read_csv_plan, write_csv_plan
 from pipeline.plans.reach import reach_table, rig_solvers
 from pipeline.plans.read import read_plan
+from pipeline.rig_benchmarks.moves import MoveBenchmarkSettings, distance_rate, path_time, redundancy
+from pipeline.rig_benchmarks.moves import move_benchmark as run_moves
 from pipeline.solvers.hybrid import HybridSettings
 
 D = torch.float64

@@ -1,4 +1,4 @@
-"""Collision-free moves of one boom of the twin rig (issue 19 item 5, spec section 7).
+"""Collision-free moves of one boom of the twin rig (docs/reference.md section 7).
 
 Every returned motion is re-checked here without pipeline.motion.checks or .path: each segment is
 rebuilt from its waypoints with timing.profile, sampled in time at 5x the checks' resolution (no

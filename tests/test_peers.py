@@ -1,6 +1,6 @@
 """The peer IK libraries (Robotics Toolbox, Pinocchio) on the project's boom: their chains equal the
-project's forward kinematics (spec vectors, random joints), the roll about the drill axis is left
-free and nothing else (they reach the spec poses and face holes to the benchmark's 0.01 mm), and
+project's forward kinematics (reference vectors, random joints), the roll about the drill axis is left
+free and nothing else (they reach the reference poses and face holes to the benchmark's 0.01 mm), and
 without the extra they say how to install it. Tests needing a library skip with that line."""
 
 import math

@@ -310,7 +310,7 @@ def test_hole_poses_put_the_preview_point_d_along_the_hole(demo):
     assert isinstance(demo, DrillPlan) and torch.equal(demo.poses(3.3), P)
 
 
-# --- hostile files (issue 18): every one built here -------------------------------------------
+# --- hostile files: every one built here -------------------------------------------
 
 
 def _moved(demo, tmp_path, name="face.xml"):

@@ -1,9 +1,9 @@
-"""Posture alternatives and their choice along a round's routes (issue 28, :mod:`pipeline.round.postures`).
+"""Posture alternatives and their choice along a round's routes (:mod:`pipeline.round.postures`).
 
 Independent values: the alternatives re-checked by forward kinematics against the plan's collars and
 directions and by the safety model and the rig's boom-boom clearance to the parks; the recursion
 against brute force over every choice; the farthest-point selection against a brute-force pick; the
-bound against the spec's bound of instances built from random choices of the alternatives.
+bound against the reference's bound of instances built from random choices of the alternatives.
 """
 
 import itertools

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from pipeline.core.errors import ConfigError, InputError, StrictCheckFailed
-from pipeline.plans.as_drilled import deviations
+from pipeline.plans.deviations import deviations
 from pipeline.plans.drpqual import LOG_COLUMNS, read_quality_log, write_quality_log
 from pipeline.plans.model import COORDS
 
@@ -55,7 +55,7 @@ def vendor_qual(holes_local: np.ndarray, ids, tmatrix: np.ndarray) -> bytes:
     return data.replace(b"<IR:ChkSum></IR:ChkSum>", f"<IR:ChkSum>{crc}</IR:ChkSum>".encode())
 
 
-def test_the_executors_log_reads_back_as_written(tmp_path):
+def test_the_execute_stage_s_log_reads_back_as_written(tmp_path):
     log = drilled_log(PLAN, np.zeros((4, 3)))
     write_quality_log(log, tmp_path / "q.xml", plan_id="demo", plan_name="demo face", created="2026-01-01T07:00:00")
     back = read_quality_log(tmp_path / "q.xml")

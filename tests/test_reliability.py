@@ -331,7 +331,7 @@ def test_stale_runs_of_dead_processes_are_marked_killed_in_every_experiment(tmp_
     assert client.get_run(alive.info.run_id).info.status == "RUNNING"  # this process still lives
 
 
-# --- the solution set and a busy store (issue 18) ---------------------------------------------
+# --- the solution set and a busy store ---------------------------------------------
 
 _HANGING_WRITER = """
 import sys, time

@@ -54,7 +54,7 @@ def test_each_boom_sees_the_tunnel_from_its_base_by_hand(safety):
     assert float(L.clearances(q)["wall"]) == pytest.approx(2.5 - 0.8 - 0.20 - 0.5, abs=1e-12)  # L's boom at y=+0.8
     assert float(L.clearances(q)["self"]) == pytest.approx(float(safety.clearances(q)["self"]), abs=1e-12)
     p, _ = L.tool_pose(q)
-    assert p.tolist() == pytest.approx([6.35, 0.0, 1.6], abs=1e-12)  # spec vector 1, moved by +0.8 in y
+    assert p.tolist() == pytest.approx([6.35, 0.0, 1.6], abs=1e-12)  # reference vector 1, moved by +0.8 in y
 
 
 def test_mounted_clearance_gradients_match_autograd(safety):

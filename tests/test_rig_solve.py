@@ -220,7 +220,7 @@ def test_a_bad_rig_is_named_through_solve(tmp_path, make_cfg, override, message)
 
 
 def test_a_calibrated_twin_is_solved_for_its_calibrated_booms(study, make_cfg, jumbo8):
-    """boom_model= with rig=twin (refused before issue 26): every ok row's joints put the calibrated boom's
+    """boom_model= with rig=twin (once refused): every ok row's joints put the calibrated boom's
     collar on the hole (its own FK, shifted by the base), where the nominal boom at the same joints misses
     by centimetres: the reach table solved for the calibrated model, not the nominal one."""
     from pipeline.calibration.model_file import load_model, save_model

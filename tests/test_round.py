@@ -1,4 +1,4 @@
-"""The round (issue 20): routing, timeline and conflict loop, baselines, lower bound and tables.
+"""The round: routing, timeline and conflict loop, baselines, lower bound and tables.
 
 Two kinds of instances: synthetic matrices (routing, bounds; a set oracle that says which node pairs
 conflict), and the real twin rig with jumbo8 joint solutions made by forward kinematics (holes are
@@ -32,7 +32,7 @@ from pipeline.round.timeline import resolve, scan, simulate
 D = torch.float64
 r = math.radians
 FAST = RoundSettings(solution_limit=60, reopt_rounds=3)  # counts: reproducible
-SPEC_DRILL = lambda L: 10.0 + L / 2.5 * 60.0 + L / 1.0  # noqa: E731  spec section 7, by hand
+SPEC_DRILL = lambda L: 10.0 + L / 2.5 * 60.0 + L / 1.0  # noqa: E731  docs/reference.md section 7, by hand
 
 
 # ---------------------------------------------------------------- synthetic instances

@@ -1,8 +1,8 @@
-"""Stage schedule (issue 20): the round of rig twin on a small face of the demo plan, checked from the files.
+"""Stage schedule: the round of rig twin on a small face of the demo plan, checked from the files.
 
 The checker (scripts/check_round.py, tests/test_check_round.py) shares no code with the planner: it
 reads the round's files with the stage's composed settings and judges them with its own kinematics,
-distances and certified sweep. Drilling times are the spec's formula by hand.
+distances and certified sweep. Drilling times are the reference's formula by hand.
 """
 
 import json
@@ -25,7 +25,7 @@ from pipeline.core.errors import ConfigError, InputError, StrictCheckFailed
 from pipeline.motion.timing import motion_from_config
 
 D = torch.float64
-SPEC_DRILL = lambda L: 10.0 + L / 2.5 * 60.0 + L / 1.0  # noqa: E731  spec section 7, by hand
+SPEC_DRILL = lambda L: 10.0 + L / 2.5 * 60.0 + L / 1.0  # noqa: E731  docs/reference.md section 7, by hand
 FAST = ["rig=twin", "schedule.network=null", "round.solution_limit=50", "round.reopt_rounds=2",
         "round.posture_rounds=1", "schedule.replay_frames=8", "runtime.progress=false"]
 COLS = ["hole_id", "collar_x", "collar_y", "collar_z", "toe_x", "toe_y", "toe_z"]
@@ -110,7 +110,7 @@ def test_independent_checker_on_the_trajectory_file(small_round):
 def test_the_round_runs_by_events_and_the_independent_checker_executes_it(small_round):
     """Spec section 8: the stage writes the actions and interlocks files; the independent checker (its own
     execution rule and geometry) executes 300 random draws of 0.7-1.5x, every hole alone at 3x and each
-    boom slow while the other is quick: no deadlock, no break of d_boom, and with the spec's durations
+    boom slow while the other is quick: no deadlock, no break of d_boom, and with the reference's durations
     the execution reproduces the trajectory file. The stage's own draws say the same."""
     tmp, _, summary, _ = small_round
     assert (tmp / "small_actions.csv").stat().st_size > 0 and (tmp / "small_interlocks.csv").exists()

@@ -171,7 +171,7 @@ def test_the_demo_face_is_solved_with_every_hole_ok_from_the_command_line(study)
     assert set(table["hole_type"]) == {"cut", "relief", "stoping", "lifter", "contour"}
 
 
-# --- hostile out= and plans (issue 18) ------------------------------------------------------
+# --- hostile out= and plans ------------------------------------------------------
 
 
 @pytest.fixture

@@ -8,7 +8,7 @@ import pytest
 import torch
 from mlflow.tracking import MlflowClient
 
-from pipeline import benchmark, distill, paper_baselines
+from pipeline import distill, paper_baselines, solver_benchmark
 from pipeline.assembly.build import load_boom
 from pipeline.core.errors import ConfigError, InputError
 from pipeline.geometry.rotations import align, rotation_angle, rpy
@@ -225,7 +225,7 @@ def test_rbf_solver_fits_its_paper_setup_on_a_small_sample(jumbo8):
 def test_build_solver_names_bad_entries(jumbo8, tmp_path):
     with pytest.raises(ConfigError, match="kind"):
         build_solver("x", {"kind": "magic"}, jumbo8, tmp_path)
-    with pytest.raises(ConfigError, match="benchmark.solvers.nm"):
+    with pytest.raises(ConfigError, match="solver_benchmark.solvers.nm"):
         build_solver("nm", {"kind": "nm", "max_iter": 3}, jumbo8, tmp_path)
     with pytest.raises(ConfigError, match="not a free joint"):
         build_solver("nm", {"kind": "nm", "couplings": [{"coeffs": {"theta2": 1}}]}, jumbo8, tmp_path)
@@ -233,7 +233,8 @@ def test_build_solver_names_bad_entries(jumbo8, tmp_path):
 
 # the tiny study trains CUIKM only (the fixture distils its start network); the peers need the `peers` extra,
 # the compiled hybrid numba (a dependency)
-METHODS = ("benchmark.methods=[cuikm,cuikm_start,hybrid,hybrid_compiled,hybrid_compiled_cuikm,rtb_ik_lm,pinocchio_clik,"
+METHODS = ("solver_benchmark.methods="
+           "[cuikm,cuikm_start,hybrid,hybrid_compiled,hybrid_compiled_cuikm,rtb_ik_lm,pinocchio_clik,"
            "nm,cuikm_nm,rbf,ceopso,ga]")
 
 
@@ -241,7 +242,7 @@ METHODS = ("benchmark.methods=[cuikm,cuikm_start,hybrid,hybrid_compiled,hybrid_c
 def bench(tmp_path_factory, copy_tiny_study, make_cfg):
     tmp = copy_tiny_study(tmp_path_factory.mktemp("bench"))
     distill.run(make_cfg(tmp))  # as DVC's distill stage does before the benchmark
-    return tmp, benchmark.run(make_cfg(tmp, METHODS))
+    return tmp, solver_benchmark.run(make_cfg(tmp, METHODS))
 
 
 @pytest.mark.slow
@@ -254,7 +255,7 @@ def test_benchmark_writes_one_row_per_method_and_logs_it(bench, make_cfg):
     peers = [] if missing_peers() else ["rtb_ik_lm", "pinocchio_clik"]  # without the extra: skipped, said once
     assert on_disk["method"].tolist() == ["cuikm", "cuikm_start", "hybrid", "hybrid_compiled", "hybrid_compiled_cuikm",
                                           *peers, "nm", "cuikm_nm", "rbf", "ceopso", "ga"]
-    assert set(benchmark.COLUMNS) == set(on_disk.columns)
+    assert set(solver_benchmark.COLUMNS) == set(on_disk.columns)
     holes = on_disk.set_index("method")["holes"]
     assert (holes.drop("ga") == 24).all() and holes["ga"] == 6  # 12 holes of groups 1 and 2; ga capped at 6
     assert on_disk[["hole_mm_mean", "batch_ms_per_hole"]].notna().all().all()
@@ -269,9 +270,9 @@ def test_benchmark_writes_one_row_per_method_and_logs_it(bench, make_cfg):
     assert distilled.loc["hybrid_compiled", "ok_share"] >= 0.9 > distilled.loc["cuikm_start", "solved_1mm_share"]
     single = on_disk.set_index("method")[["single_holes", "single_ms_per_hole", "single_ms_p95", "single_ms_p99",
                                           "single_ms_max"]]
-    # the entries with a tail target time every hole alone (their own `single`); the rest benchmark.single
+    # the entries with a tail target time every hole alone (their own `single`); the rest solver_benchmark.single
     assert (single.loc[["hybrid", "hybrid_compiled", "hybrid_compiled_cuikm"], "single_holes"] == 24).all()
-    assert single.loc["nm", "single_holes"] == min(24, make_cfg(tmp).benchmark.single)
+    assert single.loc["nm", "single_holes"] == min(24, make_cfg(tmp).solver_benchmark.single)
     for lower, upper in (("per_hole", "p95"), ("p95", "p99"), ("p99", "max")):
         assert (single[f"single_ms_{lower}"] <= single[f"single_ms_{upper}"]).all()
     for peer in peers:  # exact (the peers solve the pose) but judged by the same safety model
@@ -281,7 +282,7 @@ def test_benchmark_writes_one_row_per_method_and_logs_it(bench, make_cfg):
     assert sum(statuses.values()) == holes["hybrid"]
     not_ok = {s: n for s, n in statuses.items() if s != "ok"}
     assert reference["fast_not_ok"] == sum(not_ok.values())
-    assert reference["ok_sampled"] == min(make_cfg(tmp).benchmark.reference_ok_sample, statuses.get("ok", 0))
+    assert reference["ok_sampled"] == min(make_cfg(tmp).solver_benchmark.reference_ok_sample, statuses.get("ok", 0))
     assert reference["holes_checked"] == reference["fast_not_ok"] + reference["ok_sampled"] >= 5
     pairs = [(*key.split("->"), n) for key, n in reference["pairs"].items()]  # fast->reference
     assert sum(n for *_, n in pairs) == reference["holes_checked"]
@@ -291,20 +292,21 @@ def test_benchmark_writes_one_row_per_method_and_logs_it(bench, make_cfg):
     assert (out / "results.md").read_text().count("\n|") >= 7 and (out / "figures" / "error_vs_time.png").exists()
     client = MlflowClient(f"sqlite:///{tmp}/mlflow.db")
     exp = client.get_experiment_by_name("boom-ik-tiny")
-    runs = client.search_runs([exp.experiment_id], "tags.stage = 'benchmark'")
+    runs = client.search_runs([exp.experiment_id], "tags.stage = 'solver_benchmark'")
     assert len(runs) == 1 and "nm.hole_mm_mean" in runs[0].data.metrics
 
 
 def test_benchmark_names_unknown_methods_and_missing_models(tiny_study, make_cfg, tmp_path):
     tmp = tiny_study
     with pytest.raises(ConfigError, match="no entry"):
-        benchmark.run(make_cfg(tmp, "benchmark.methods=[cuikm,warp_drive]"))
-    with pytest.raises(ConfigError, match="benchmark.holes"):
-        benchmark.run(make_cfg(tmp, "benchmark.holes=100000"))
-    with pytest.raises(ConfigError, match=r"benchmark.solvers.cuikm.single = -1"):
-        benchmark.run(make_cfg(tmp, "benchmark.methods=[cuikm]", "+benchmark.solvers.cuikm.single=-1"))
+        solver_benchmark.run(make_cfg(tmp, "solver_benchmark.methods=[cuikm,warp_drive]"))
+    with pytest.raises(ConfigError, match="solver_benchmark.holes"):
+        solver_benchmark.run(make_cfg(tmp, "solver_benchmark.holes=100000"))
+    with pytest.raises(ConfigError, match=r"solver_benchmark.solvers.cuikm.single = -1"):
+        solver_benchmark.run(make_cfg(tmp, "solver_benchmark.methods=[cuikm]",
+                                      "+solver_benchmark.solvers.cuikm.single=-1"))
     with pytest.raises(InputError, match="no such hole table"):
-        benchmark.run(make_cfg(tmp_path / "empty"))
+        solver_benchmark.run(make_cfg(tmp_path / "empty"))
 
 
 @pytest.mark.slow

@@ -135,9 +135,9 @@ def test_dvc_repro_of_the_quick_experiment_then_up_to_date_and_a_param_change_re
     # tests/test_schedule.py, tests/test_postures.py and tests/test_solvers.py): the first repro of 17
     # stages, alone on 2 cores, took 188 s with them (schedule 31 s, benchmark 23 s).
     compose = [sys.executable, "-m", "pipeline.params", *SHORT, "round.routing=false", "schedule.baselines=false",
-               "runtime.threads=1", "runtime.train_threads=1", "execution.draws=20", "export.benchmark.compile=false",
+               "runtime.threads=1", "runtime.train_threads=1", "draws.count=20", "export.benchmark.compile=false",
                "export.benchmark.isolate=false", "round.sweep_more_bands_m=[]", "round.postures=1",
-               "benchmark.methods=[cuikm,uikm,sikm,sikm_best,cuikm_start,hybrid,nm]"]
+               "solver_benchmark.methods=[cuikm,uikm,sikm,sikm_best,cuikm_start,hybrid,nm]"]
     _run(compose, cwd=tmp_path)
     dvc = [sys.executable, "-m", "dvc"]
     _run([*dvc, "repro"], cwd=tmp_path, timeout=1500)  # a guard against a hang, not a speed test

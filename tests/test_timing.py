@@ -1,4 +1,4 @@
-"""Move and drilling times (spec section 7) against hand computations, and the sampled profiles."""
+"""Move and drilling times (docs/reference.md, section 7) against hand computations, and the sampled profiles."""
 
 import math
 
@@ -21,7 +21,7 @@ from pipeline.motion.timing import (
 D = torch.float64
 r = math.radians
 PARK = [0.0, 0.0, 3.0, 0.0, 0.0, 0.0, 0.0, 1.0]
-SPEEDS = [r(15), r(12), 0.3, r(20), r(15), r(15), r(25), 0.5]  # spec section 7
+SPEEDS = [r(15), r(12), 0.3, r(20), r(15), r(15), r(25), 0.5]  # docs/reference.md section 7
 
 
 @pytest.fixture(scope="module")
@@ -160,7 +160,7 @@ def _cfg(**changes):
     (_cfg(joint_speeds=None), r"^motion\.joint_speeds = None: expected a mapping"),
     (_cfg(accel_time=0), r"^motion\.accel_time = 0\.0: must be > 0"),
     (_cfg(drilling={"rate_m_per_min": 0}), r"^motion\.drilling\.rate_m_per_min = 0\.0: must be > 0"),
-    # issue 55: durations have upper bounds (a hole's times are summed over the round)
+    # durations have upper bounds (a hole's times are summed over the round)
     (_cfg(accel_time=1e9), r"^motion\.accel_time = 1000000000\.0: must be <= 60"),
     (_cfg(drilling={"collaring_s": 1e300}), r"^motion\.drilling\.collaring_s = 1e\+300: must be <= 3600"),
     (_cfg(jerk=1), r"^motion\.jerk: unknown setting"),

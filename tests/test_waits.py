@@ -1,4 +1,4 @@
-"""Exact waits for fixed routes (issue 28, pipeline.round.waits): CP-SAT's schedule against a brute
+"""Exact waits for fixed routes (pipeline.round.waits): CP-SAT's schedule against a brute
 force over every order of the conflicting segment pairs, computed here from scratch."""
 
 import itertools

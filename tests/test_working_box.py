@@ -1,4 +1,4 @@
-"""Omega_sup from the working box (spec section 3): samples in the box, poses by forward kinematics,
+"""Omega_sup from the working box (docs/reference.md, section 3): samples in the box, poses by forward kinematics,
 face-like enough; the box derivation is reproducible; bad boxes are named."""
 
 import math

@@ -196,13 +196,13 @@ def record_differences(planned: dict, now: dict) -> list[str]:
 
 def true_rig_booms(rig: Rig, boom_file: str | None, model_file: str | None,
                    load_model: ModelLoader | None = None) -> tuple[list[Boom], str]:
-    """The boom each rig boom really is, for the as-drilled log (``execution.true_boom``: a boom config file
-    like conf/boom/jumbo8.yaml, given by path; ``execution.true_boom_model``: a calibrated model file), for
+    """The boom each rig boom really is, for the as-drilled log (``execute.true_boom``: a boom config file
+    like conf/boom/jumbo8.yaml, given by path; ``execute.true_boom_model``: a calibrated model file), for
     every rig boom of its kind, the others as planned; with neither, the booms the round was planned with.
     Returns them in the rig's order and what they are (for the log's JSON)."""
     planned = [m.boom for m in rig.booms]
     if boom_file and model_file:
-        raise ConfigError("execution: give execution.true_boom or execution.true_boom_model, not both")
+        raise ConfigError("execute: give execute.true_boom or execute.true_boom_model, not both")
     if not boom_file and not model_file:
         return planned, "the planning model"
     if boom_file:
@@ -212,16 +212,16 @@ def true_rig_booms(rig: Rig, boom_file: str | None, model_file: str | None,
         try:
             node = yaml.safe_load(path.read_text())
         except (OSError, yaml.YAMLError) as e:
-            raise ConfigError(f"execution.true_boom = {boom_file!r}: cannot read it ({' '.join(str(e).split())})") \
+            raise ConfigError(f"execute.true_boom = {boom_file!r}: cannot read it ({' '.join(str(e).split())})") \
                 from None
         true = load_boom(node if isinstance(node, Mapping) else {})
-        setting = f"execution.true_boom={boom_file}"
+        setting = f"execute.true_boom={boom_file}"
     else:
         if load_model is None:
-            raise ConfigError("execution.true_boom_model: this command cannot load calibrated boom models")
+            raise ConfigError("execute.true_boom_model: this command cannot load calibrated boom models")
         nominal = {m.boom.name: getattr(m.boom, "nominal", m.boom) for m in rig.booms}
-        true = load_model("execution.true_boom_model", model_file, nominal)
-        setting = f"execution.true_boom_model={model_file}"
+        true = load_model("execute.true_boom_model", model_file, nominal)
+        setting = f"execute.true_boom_model={model_file}"
     kinds = sorted({m.boom.name for m in rig.booms})
     if true.name not in kinds:
         raise ConfigError(f"{setting}: a boom {true.name!r}, but rig '{rig.name}' has booms of kind {kinds}")

@@ -1,4 +1,4 @@
-"""Kinematic error compensation (paper 004, issue 13): a boom with per-joint geometric errors,
+"""Kinematic error compensation (paper 004): a boom with per-joint geometric errors,
 simulated and field measurements, the paper's BP / PSO-BP / SSA-BP compensation networks, and
 identification of the errors by Levenberg-Marquardt with an identifiability check.
 

@@ -7,7 +7,7 @@ known one (``solver.deep_start: unknown setting; did you mean 'deep_starts'?``),
 is another settings class is parsed as a nested node. Stages parse every group they use first thing, so a
 bad value fails before data is loaded, files are written or an MLflow run is created.
 
-Every size, count, duration and iteration budget has an upper bound as well as a lower one (issue 55: a huge
+Every size, count, duration and iteration budget has an upper bound as well as a lower one (a huge
 value must be refused by name, not end in an allocation traceback after minutes of work); each group's conf
 file states its bounds and why. Seeds are bounded by :data:`SEED_MAX`.
 """

@@ -123,6 +123,6 @@ def stage_modules(package: Path = PACKAGE) -> dict[str, str]:
         if STAGE_MARK in text:
             first = (ast.get_docstring(ast.parse(text)) or "").strip().splitlines()[:1]
             line = re.sub(r"^Stage(?: ``\w+``)?(?: \([^)]*\))?: ", "", first[0] if first else "")
-            line = re.sub(r" \((?:issue|spec)[^)]*\)|, ``python -m [^`]*``", "", line).replace("``", "")
+            line = re.sub(r" \((?:docs/)[^)]*\)|, ``python -m [^`]*``", "", line).replace("``", "")
             stages[path.stem] = line[:1].upper() + line[1:]
     return stages

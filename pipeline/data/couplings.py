@@ -3,13 +3,13 @@
 Paper 000's NM adds two equations, theta2 - theta4 = -180 deg and theta5 + theta1 = -90 deg, in its
 own joint zeros (its D-H figure did not survive the OCR). They are the parallel-holding pair of a
 drilling boom: a feed joint compensates a boom joint, so the feed keeps its direction while the boom
-lifts or swings. In jumbo8's joint zeros (spec section 1) that pair reads ``q2 + q5 = 0`` (feed tilt
+lifts or swings. In jumbo8's joint zeros (docs/reference.md, section 1) that pair reads ``q2 + q5 = 0`` (feed tilt
 cancels boom lift) and ``q1 - q6 = 0`` (feed swing cancels boom swing): with them and q4 = q7 = 0 the
 feed stays parallel to +x for any lift, swing and extensions, and with either sign flipped it does
 not (``tests/test_couplings.py``). The benchmark's ``solvers.nm_coupled`` uses the same rows.
 
 A row is ``{coeffs: {joint: c, ...}, value: v}`` for ``sum_k c_k q_k = v`` in SI units (rad, m),
-the format of ``conf/benchmark/default.yaml``. Each row is solved for one joint, its *dependent*
+the format of ``conf/solver_benchmark/default.yaml``. Each row is solved for one joint, its *dependent*
 joint: the one of its joints furthest along the chain that no earlier row took (the compensating
 feed joint); the others are drawn.
 """

@@ -1,4 +1,4 @@
-"""Hole sets of spec section 3: Omega_unsup, Omega_sup and the test groups.
+"""Hole sets of docs/reference.md section 3: Omega_unsup, Omega_sup and the test groups.
 
 Everything is drawn on the CPU in float64 from a seeded ``torch.Generator``, so
 the same seed gives the same holes on any machine with the same torch build.
@@ -153,7 +153,7 @@ def sample_joints(n: int, boom, seed: int, box: Mapping | None = None) -> torch.
 
 def in_face_window(pose: torch.Tensor, tunnel: Tunnel, x_range=(5.5, 7.5), max_angle_deg: float = 30.0):
     """Boolean ``(n,)``: the collar lies in the face window (x in ``x_range``, inside the profile) and
-    the hole points within ``max_angle_deg`` of +x (the spec's measure of a face-like pose)."""
+    the hole points within ``max_angle_deg`` of +x (the reference's measure of a face-like pose)."""
     p, d = pose[:, :3], pose[:, 3:] - pose[:, :3]
     cos = d[:, 0] / d.norm(dim=-1).clamp_min(1e-12)
     return ((p[:, 0] >= x_range[0]) & (p[:, 0] <= x_range[1]) & tunnel.contains(p[:, 1], p[:, 2])

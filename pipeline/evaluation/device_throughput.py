@@ -1,4 +1,4 @@
-"""The hybrid solver's throughput on one device at growing batch sizes (issue 30's GPU part).
+"""The hybrid solver's throughput on one device at growing batch sizes.
 
 For each size ``N`` the holes are drawn like the study's test groups (:func:`sample_holes`, a seed per
 size), solved once untimed (the device's first kernels, cuBLAS/cuSOLVER handles and the caching

@@ -1,4 +1,4 @@
-"""Error and collision metrics of IK solutions (spec section 4, paper 000 Table 3)."""
+"""Error and collision metrics of IK solutions (docs/reference.md, section 4; paper 000 Table 3)."""
 
 from __future__ import annotations
 

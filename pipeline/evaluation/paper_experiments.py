@@ -33,8 +33,9 @@ from pipeline.solvers.rbf import RBFSolver
 log = logging.getLogger(__name__)
 
 
-# The ``benchmark.papers`` node (conf/benchmark/default.yaml states the bounds): parsed with the benchmark group and
-# by paper_baselines first thing; a swarm's run is population x iterations boom poses, each run one target
+# The ``solver_benchmark.papers`` node (conf/solver_benchmark/default.yaml states the bounds): parsed with
+# the solver_benchmark group and by paper_baselines first thing; a swarm's run is population x iterations
+# boom poses, each run one target
 @dataclass(frozen=True)
 class PaperPSOSettings:
     booms: list[str] = field(metadata=rule(min_items=1, max_items=10))
@@ -49,8 +50,8 @@ class PaperPSOSettings:
     def __post_init__(self):
         for k, it in enumerate(self.checkpoints):
             if it > self.iterations:
-                raise ConfigError(f"benchmark.papers.pso.checkpoints[{k}] = {it}: beyond "
-                                  f"benchmark.papers.pso.iterations = {self.iterations}")
+                raise ConfigError(f"solver_benchmark.papers.pso.checkpoints[{k}] = {it}: beyond "
+                                  f"solver_benchmark.papers.pso.iterations = {self.iterations}")
 
 
 @dataclass(frozen=True)
@@ -64,7 +65,7 @@ class PaperGASettings:
 @dataclass(frozen=True)
 class PaperRBFSettings:
     groups: list[int] = field(metadata=rule(ge=1, le=MAX_TEST_GROUPS, min_items=1, max_items=MAX_TEST_GROUPS))
-    methods: list[str] = field(metadata=rule(min_items=1))  # benchmark.solvers entries
+    methods: list[str] = field(metadata=rule(min_items=1))  # solver_benchmark.solvers entries
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""What the papers report (spec section 6; paper 000 Table 3), for the report stage."""
+"""What the papers report (docs/reference.md, section 6; paper 000 Table 3), for the report stage."""
 
 # Paper 000, mean hole-seeking error (mm) and average collision rate (%).
 PAPER000 = {

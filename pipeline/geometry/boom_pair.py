@@ -1,4 +1,4 @@
-"""Boom-boom clearance of two booms of a rig (spec section 7), batched over both booms' configurations.
+"""Boom-boom clearance of two booms of a rig (docs/reference.md, section 7), batched over both booms' configurations.
 
 For booms a != b, the distance of every capsule of a (jumbo8: boom A-C, feed H0-H) to every capsule
 of b is the clamped segment-segment distance of their axes (:func:`~pipeline.geometry.collision.

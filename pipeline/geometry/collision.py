@@ -1,4 +1,4 @@
-"""Clearances of a boom configuration: self, wall, ground and arch (spec section 2).
+"""Clearances of a boom configuration: self, wall, ground and arch (docs/reference.md, section 2).
 
 One function, :meth:`SafetyModel.clearances`, measures how far each safety
 distance is kept (metres, negative when violated). The boolean checks used in

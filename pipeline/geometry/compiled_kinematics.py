@@ -5,7 +5,7 @@ Why a second copy: on one hole, torch spends about 4 us on every operation while
 the whole chain takes well under a microsecond (docs/benchmarks.md), so a rig asking for one hole at
 a time waits on the framework. These kernels do the same arithmetic in compiled loops. They are
 built from the same :class:`Boom` and :class:`SafetyModel` objects (no number copied by hand), and
-tests/test_compiled.py holds them equal to the torch versions (spec vectors, random joints,
+tests/test_compiled.py holds them equal to the torch versions (reference vectors, random joints,
 Jacobians, clearances) at float64 rounding level, so the two cannot drift apart.
 
 Layout: :class:`ChainArrays` and :class:`SafetyArrays` turn the objects into plain arrays once; the

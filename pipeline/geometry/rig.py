@@ -1,7 +1,7 @@
-"""A rig: several booms on one carrier, each with its own base in the rig frame (spec section 7).
+"""A rig: several booms on one carrier, each with its own base in the rig frame (docs/reference.md, section 7).
 
 The rig frame is the jumbo8 base frame with the carrier on the tunnel centre line; a plan is given in
-it. Each boom's base is a translation of the rig frame (no rotation, as the spec's rigs). A boom's
+it. Each boom's base is a translation of the rig frame (no rotation, as the reference's rigs). A boom's
 chain computes frames in its own base frame; :meth:`MountedBoom.frames` moves them into the rig frame
 by adding the base offset to every frame origin, and everything downstream (tunnel, self and
 boom-boom clearances, their Jacobians) works on those frames. So one tunnel definition serves every

@@ -1,4 +1,4 @@
-"""The horseshoe tunnel profile (spec section 2): signed distances to its surfaces.
+"""The horseshoe tunnel profile (docs/reference.md, section 2): signed distances to its surfaces.
 
 Cross-section in the base frame's (y, z) plane: floor z = 0, vertical walls at
 |y| = width/2 up to ``wall_height``, and a semicircular arch of radius width/2

@@ -1,5 +1,5 @@
 """How Omega_sup is drawn and labelled: the working box (the range of each joint that face holes
-actually use, spec section 3). The labels themselves (sampled, home branch, continuation) are
+actually use, docs/reference.md section 3). The labels themselves (sampled, home branch, continuation) are
 :mod:`pipeline.data.hole_sets`' with the solvers of :mod:`pipeline.solvers.labels`.
 
 Paper 000 labels its supervised set from "each joint's range of activity". A rig would take those

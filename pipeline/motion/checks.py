@@ -1,4 +1,4 @@
-"""Dense clearance check of one boom's timed motion in a rig (spec section 7: moves are collision-free).
+"""Dense clearance check of one boom's timed motion in a rig (docs/reference.md section 7: moves are collision-free).
 
 At every checked instant the boom's self and tunnel clearances (its :class:`~pipeline.geometry.
 collision.SafetyModel`, the tunnel seen from its base through :class:`~pipeline.geometry.rig.
@@ -48,7 +48,7 @@ from pipeline.geometry.rig import Rig
 from pipeline.geometry.tunnel import SURFACES
 from pipeline.motion.path import Path, Timed, distinct, travel
 
-RESOLUTION = 0.01  # m: no boom point moves more than this between two checks (issue 19)
+RESOLUTION = 0.01  # m: no boom point moves more than this between two checks
 REFINEMENTS = 4  # halvings of the resolution tried where a floor is short of its margin (16x denser at most)
 KINDS = ("self", "tunnel", "boom")  # the kinds of clearance a floor and a margin are given for
 

@@ -1,4 +1,4 @@
-"""Collision-free moves of one boom of a rig, from configuration A to B (spec section 7, issue 19).
+"""Collision-free moves of one boom of a rig, from configuration A to B (docs/reference.md, section 7).
 
 :func:`plan_move` tries, in order, and returns the first motion certified clear at every instant
 (:func:`pipeline.motion.checks.certify_path`: self, tunnel from the boom's base, d_boom to every other
@@ -14,7 +14,7 @@ floor between checks at least its margin, the checks refined where it is short):
    joint space within the joint ranges (with ``box_margin``, first within the box spanned by A and B
    widened by that share of each range: a detour near the straight line, which keeps out of the
    space of booms working beside it; then the whole ranges), then OMPL's path simplifier (vertex reduction and
-   shortcutting), then the spec's profile on each edge, stopping at each waypoint, and the dense check
+   shortcutting), then the reference's profile on each edge, stopping at each waypoint, and the dense check
    again. OMPL because it is the maintained reference library of sampling planners (BSD, Kavraki
    Lab at Rice; MoveIt's default planners), ships Python wheels (2.0: cp311, no build), and has a
    bidirectional RRT and a shortcutting simplifier ready; its state and edge checks call back into

@@ -6,7 +6,7 @@ with the synchronised trapezoid of :mod:`pipeline.motion.timing` and starting an
 plain difference of consecutive waypoints, never folded, so the timed motion is exactly the straight
 edge that was checked; :func:`unwrapped` turns a goal into the short-way target first.
 
-A :class:`Timed` path is the spec's trajectory-file form (section 7): rows ``(t, q)``, the joints
+A :class:`Timed` path is the reference's trajectory-file form (section 7): rows ``(t, q)``, the joints
 linear in t between rows, the boom standing at its first row before ``t[0]`` and at its last after
 ``t[-1]``. Another boom's motion is given to the checks in this form.
 

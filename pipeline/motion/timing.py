@@ -1,11 +1,11 @@
-"""How long a boom takes (spec section 7): moves between configurations, and drilling a hole.
+"""How long a boom takes (docs/reference.md, section 7): moves between configurations, and drilling a hole.
 
 A move from A to B is a straight line in joint space, ``q(t) = A + s(t) (B - A)``, with one path
 profile ``s`` (0 to 1) for every joint, so all joints start and end together. Joint i's step
 ``|d_i|`` scales the path's speed and acceleration: ``s`` may move at most at ``V = min_i v_i / |d_i|``
 and accelerate at most at ``A = min_i a_i / |d_i|``. The fastest such profile is a trapezoid
 (accelerate at A to V, cruise, brake) or, when V is out of reach, a triangle. When every joint
-reaches its speed in the same time (the spec's 0.5 s, a_i = v_i / 0.5 s), its duration is exactly
+reaches its speed in the same time (the reference's 0.5 s, a_i = v_i / 0.5 s), its duration is exactly
 that of the slowest joint alone (:func:`joint_times`), and no joint exceeds its own v_i or a_i.
 
 Full-turn joints (revolute with a range of 360 degrees: q4 and q7 of jumbo8) take the short way

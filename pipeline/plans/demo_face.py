@@ -225,7 +225,7 @@ def demo_face(
     along the floor, looking down; contour holes (K..) along walls and arch, looking out. Cut
     and stoping holes are parallel to +x; all toes lie on the plane ``x_face + depth``.
 
-    Drillability (spec sect. 2-3): every collar lies inside the profile shrunk by ``inset``,
+    Drillability (docs/reference.md, sections 2 and 3): every collar lies inside the profile shrunk by ``inset``,
     every direction within ``max_lookout_deg`` of +x, and the feed beam at every hole (collar
     minus 4.5 m along the hole, its front metre excepted, radius 0.15 m) keeps the wall
     (0.5 m), ground and arch (0.1 m) safety distances with ``margin`` to spare, checked with

@@ -44,7 +44,7 @@ from pipeline.plans.iredes_checksum import crc32_text, file_crc32
 from pipeline.plans.iredes_frames import TMATRIX_TOL, apply_local_to_plan, axis_map
 from pipeline.plans.model import COORDS, RowProblem
 
-STATUSES = ("Drilled", "Interrupted")  # Hstatus as the executor writes it; readers keep any other word
+STATUSES = ("Drilled", "Interrupted")  # Hstatus as the execute stage writes it; readers keep any other word
 LOG_COLUMNS = ["hole_id", "hole_name", "boom", "status", *COORDS, "start_time", "end_time"]
 
 

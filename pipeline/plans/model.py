@@ -1,7 +1,7 @@
 """Drill plans: the holes of one round on a tunnel face, checked row by row, as 6-D hole poses.
 
 A plan lists, per hole, its collar (start point on the face) and toe (end point), in metres
-in the boom base frame (spec sect. 1: x toward the face, y on the tunnel centre line, z up
+in the boom base frame (docs/reference.md, section 1: x toward the face, y on the tunnel centre line, z up
 from the floor). The hole pose of paper 000 eq. 4 is ``[p, p + D * unit(toe - collar)]``: the
 preview point lies D along the hole, whatever the hole's own length.
 

@@ -6,16 +6,18 @@ target; its joints stay in its own base frame. While one boom is solved every ot
 park configuration, as an obstacle (boom-boom clearance rows in the LM, and in the ok rule): the reach
 table says which boom *can* drill a hole, not in which order (the round planner decides that).
 
-The table (:func:`reach_table`) has one row per hole and boom, hole-major in the plan's order and the
-rig's boom order, with a ``boom`` column (the rig config's names) beside today's solution columns and
-``clearance_boom_m`` (the nearest standing boom, less d_boom). Rows the plan reader could not use are
-kept once per boom with status ``invalid``. :func:`reach_figure` draws the face: which boom or booms
-can drill each hole (ok), and the holes no boom can drill with every boom's status.
+:func:`solved_reach` is the one way a product stage or benchmark builds it: the solvers from a first
+start and the working box, then the table. The table (:func:`reach_table`) has one row per hole and
+boom, hole-major in the plan's order and the rig's boom order, with a ``boom`` column (the rig config's
+names) beside the solution columns and ``clearance_boom_m`` (the nearest standing boom, less d_boom).
+Rows the plan reader could not use are kept once per boom with status ``invalid``. :func:`reach_figure`
+draws the face: which boom or booms can drill each hole (ok), and the holes no boom can drill with
+every boom's status.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,6 +25,7 @@ import pandas as pd
 import torch
 from matplotlib.figure import Figure
 
+from pipeline.data.holes import joint_box
 from pipeline.geometry.boom_pair import BoomPair
 from pipeline.geometry.kinematics import Boom
 from pipeline.geometry.rig import Rig
@@ -92,6 +95,15 @@ def reach_table(plan: DrillPlan, rig: Rig, solvers: list[HybridSolver], method: 
         tables.append(t)
     table = pd.concat(tables, ignore_index=True).sort_values("_order", kind="stable").drop(columns="_order")
     return Reach(table.reset_index(drop=True), results)
+
+
+def solved_reach(plan: DrillPlan, rig: Rig, first_start: Callable[[Boom], Solver | None], settings: HybridSettings,
+                 box: Mapping | None, method: str) -> tuple[list[HybridSolver], Reach]:
+    """Each boom's hybrid solver and the reach table of ``plan``: ``first_start(boom)`` gives a boom's first
+    start (:func:`pipeline.solvers.network_start.first_starts`), ``box`` the working box its other starts
+    are drawn in (``holes.sup.box``, per joint; None: the full ranges); ``method`` names it in the table."""
+    solvers = rig_solvers(rig, first_start, settings, joint_box(rig.booms[0].boom, box))
+    return solvers, reach_table(plan, rig, solvers, method)
 
 
 CATEGORY_STYLE = {"none": ("tab:red", "x")}

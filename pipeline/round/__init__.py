@@ -1,4 +1,4 @@
-"""The round (issue 20): holes allocated to booms, ordered and timed so that no two booms come closer
+"""The round: holes allocated to booms, ordered and timed so that no two booms come closer
 than d_boom at any instant; its baselines, its lower bound and its tables.
 
 Product side, above :mod:`pipeline.motion`. Everything here works on arrays and config values

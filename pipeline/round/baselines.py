@@ -1,8 +1,8 @@
-"""The spec's reference rounds (section 7), timed through the same timeline and conflict handling.
+"""The reference's reference rounds (section 7), timed through the same timeline and conflict handling.
 
 - ``naive``: each hole goes to the boom on its side of the centre line (y >= 0 to the boom at
   y > 0), drilled in the plan's row order. For a rig of more than two booms "its side" is the boom
-  whose base is nearest in y (ties to the larger y), which is the spec's rule for twin and gives
+  whose base is nearest in y (ties to the larger y), which is the reference's rule for twin and gives
   everything to the one boom of single. When that boom cannot drill the hole, the nearest-in-y boom
   that can takes it; a hole no boom can drill is left out (reported like the optimised round's).
 - ``nearest``: the same allocation; each boom goes next to the nearest undrilled collar of its own

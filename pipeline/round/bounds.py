@@ -1,4 +1,4 @@
-"""The spec's lower bound of a round's makespan (section 7).
+"""The reference's lower bound of a round's makespan (section 7).
 
 ``max(longest single hole, (sum of drilling + sum over holes of the shortest move into the hole) / B)``
 

@@ -15,7 +15,7 @@ same moves with the same conflict handling:
    ``moves_not_clear`` with the reasons), never hidden;
 4. given the posture alternatives (:mod:`pipeline.round.postures`), the first planning times the seeds
    alone, and the round is planned again on the postures chosen along the best round's routes (each
-   planning with its own oracle and book, the previous book's answers carried); the spec's baselines keep
+   planning with its own oracle and book, the previous book's answers carried); the reference's baselines keep
    the reach table's postures.
 """
 
@@ -37,6 +37,7 @@ from pipeline.round.oracle import KinematicOracle
 from pipeline.round.planner import RoundPlan, baseline, better, make_book, plan_round
 from pipeline.round.postures import Postures, choose_postures, posture_bound
 from pipeline.round.problem import precedence_indices
+from pipeline.round.problem_file import RoundProblem
 from pipeline.round.rig_problem import kinematic_round
 from pipeline.round.settings import RoundSettings
 from pipeline.round.tables import boom_floor, round_table, summary, trajectory_table
@@ -111,24 +112,47 @@ def planned_joints(rig: Rig, plan: DrillPlan, reach: Reach, table: pd.DataFrame,
     return joints
 
 
-def round_instance(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: RoundSettings, joints=None):
-    """The instance, its oracle and each boom's joint solutions ``(H, n)`` of ``plan`` from its reach table
-    (or ``joints``, per boom ``(H, n)``: the postures a round chose, :mod:`pipeline.round.postures`)."""
-    ids = plan.holes["hole_id"].astype(str).tolist()
-    H = len(ids)
+def _reach_ok(reach: Reach, rig: Rig, ids) -> np.ndarray:
     t = reach.table[reach.table["status"] != INVALID]
     ok = t.assign(ok=t["status"] == "ok").pivot_table(index="boom", columns="hole_id", values="ok", aggfunc="any")
-    reach_ok = np.stack([ok.loc[name, ids].to_numpy(bool) if name in ok.index else np.zeros(H, bool)
-                         for name in rig.names])
-    joints = [_joints(reach, rig, b, H) for b in range(len(rig))] if joints is None else \
-        [torch.as_tensor(q, dtype=D) for q in joints]
+    return np.stack([ok.loc[name, ids].to_numpy(bool) if name in ok.index else np.zeros(len(ids), bool)
+                     for name in rig.names])
+
+
+def _plan_round_instance(rig: Rig, plan: DrillPlan, ids, joints, reach_ok, reasons, motions, settings: RoundSettings):
     collars = plan.holes[COLLAR].to_numpy(float)
     toes = plan.holes[["toe_x", "toe_y", "toe_z"]].to_numpy(float)
     lengths = np.linalg.norm(toes - collars, axis=1)
     prec = precedence_indices(settings.precedence, ids)
-    inst, oracle = kinematic_round(rig, ids, joints, reach_ok, lengths, motions, collars, prec, settings,
-                                   _reasons(reach, ids, rig))
+    return kinematic_round(rig, ids, joints, reach_ok, lengths, motions, collars, prec, settings, reasons)
+
+
+def round_instance(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: RoundSettings, joints=None):
+    """The instance, its oracle and each boom's joint solutions ``(H, n)`` of ``plan`` from its reach table
+    (or ``joints``, per boom ``(H, n)``: the postures a round chose, :mod:`pipeline.round.postures`)."""
+    ids = plan.holes["hole_id"].astype(str).tolist()
+    joints = [_joints(reach, rig, b, len(ids)) for b in range(len(rig))] if joints is None else \
+        [torch.as_tensor(q, dtype=D) for q in joints]
+    inst, oracle = _plan_round_instance(rig, plan, ids, joints, _reach_ok(reach, rig, ids), _reasons(reach, ids, rig),
+                                        motions, settings)
     return inst, oracle, joints
+
+
+def round_problem(rig: Rig, plan: DrillPlan, reach: Reach, table: pd.DataFrame, joint_names) -> RoundProblem:
+    """What a planned round was planned on (:mod:`pipeline.round.problem_file`), each hole of the round
+    table ``table`` at the joints the round drills it with."""
+    ids = plan.holes["hole_id"].astype(str).tolist()
+    joints = np.stack([q.numpy() for q in planned_joints(rig, plan, reach, table, joint_names)])
+    return RoundProblem(tuple(rig.names), tuple(ids), tuple(joint_names), _reach_ok(reach, rig, ids), joints,
+                        _reasons(reach, ids, rig))
+
+
+def problem_instance(rig: Rig, plan: DrillPlan, problem: RoundProblem, motions, settings: RoundSettings):
+    """The instance and oracle of a round's problem as :func:`round_instance` builds them from the reach
+    table, without solving it again: what a round handed on is planned on (``pipeline.execute``)."""
+    ids = plan.holes["hole_id"].astype(str).tolist()
+    joints = [torch.as_tensor(q, dtype=D) for q in problem.joints]
+    return _plan_round_instance(rig, plan, ids, joints, problem.reach, problem.reasons, motions, settings)
 
 
 def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: RoundSettings,
@@ -137,13 +161,13 @@ def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
     """Plan the round of ``plan`` on ``rig`` from its reach table (module docstring). ``finish``:
     ``(instance, timeline, oracle) -> (timeline, extra)``, called on the planned round; the tables and
     the summary are written from the timeline it returns (the execution layer's robust round, re-timed
-    by events: :func:`pipeline.execution.robust.robust_finish`), ``extra`` kept as ``RoundResult.finished``.
+    by events: :func:`pipeline.events.robust_round.robust_finish`), ``extra`` kept as ``RoundResult.finished``.
     ``postures``: more ok solutions per hole and boom (:func:`pipeline.round.postures.round_postures`):
     the round is planned again from the postures chosen along the best round's routes while that is
     better (``round.posture_rounds``); the lower bound is then the least over every alternative."""
     say = say or (lambda _m: None)
     inst, oracle, joints = round_instance(rig, plan, reach, motions, settings)
-    first_oracle = oracle  # the spec's baselines drill the reach table's postures
+    first_oracle = oracle  # the reference's baselines drill the reach table's postures
     started = time.perf_counter()
     choosing = postures is not None and postures.k > 1 and inst.start is None and isinstance(oracle, KinematicOracle)
     # with postures to choose, the first planning times the seeds alone: the routing runs on the chosen
@@ -196,7 +220,7 @@ def _plan_postures(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
     """The round planned again from the postures chosen along the best round's routes
     (:mod:`pipeline.round.postures`), up to ``round.posture_rounds`` times while each is better; the
     best plan, its oracle and joints. Each planning takes the previous book's answers for the moves whose
-    ends kept their joints; the bound is the least over every alternative; the spec's baselines stay
+    ends kept their joints; the bound is the least over every alternative; the reference's baselines stay
     those of the reach table's postures (the first plan's)."""
     limits = [m.joints for m in motions]
     first, best = rp, (rp, oracle, joints)

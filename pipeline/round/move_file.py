@@ -2,14 +2,14 @@
 
 Planning a round certifies every move it looks at and plans detours (OMPL) for those that are not
 clear straight: most of the planning time. A round interrupted on the rig is re-planned from where
-the booms stand (:mod:`pipeline.execution.interrupt`) over the same holes and joint solutions, so the
-schedule stage writes its :class:`pipeline.round.detours.MoveBook` with the round and the executor
+the booms stand (:mod:`pipeline.events.interrupt`) over the same holes and joint solutions, so the
+schedule stage writes its :class:`pipeline.round.detours.MoveBook` with the round and the execute stage
 reads it back: only moves never looked at are certified or planned again.
 
 The file is a numpy ``.npz`` read with ``allow_pickle=False`` (no code runs on load): each boom's
 joint solutions (the book is valid only for them), the status and certified floors of every move,
 the detours' waypoints and the reasons, the certified sweep results of the round's action pairs (the
-interlocks' conflicts, :mod:`pipeline.execution.sweeps`: the hand-on's new plan shares most of its
+interlocks' conflicts, :mod:`pipeline.events.conflicts`: the hand-on's new plan shares most of its
 actions with the planned round), and the settings all of it was made under (sample spacing,
 refinements, margins, the oracle's margin and d_boom, detour settings). :func:`load_book` refuses,
 with the reason, a file whose joints or settings differ from the caller's: a certificate for another
@@ -58,7 +58,7 @@ def save_book(book: MoveBook, path) -> None:
             points.append(w)
     rk = sorted(book.reason)
     n = joints.shape[-1]
-    pk = sorted(book.oracle.sweep_pairs)  # certified sweep results of action pairs (execution/sweeps.py)
+    pk = sorted(book.oracle.sweep_pairs)  # certified sweep results of action pairs (events/conflicts.py)
     pair_key = np.asarray([[int(x) for x in ka + kb] for ka, kb in pk], np.int64).reshape(-1, 10)
     pair_val = np.asarray([book.oracle.sweep_pairs[k] for k in pk], float).reshape(-1, 2)
     with open(path, "wb") as f:
@@ -78,7 +78,7 @@ def _check_arrays(path, data: dict, book: MoveBook, joints_n: int) -> None:
     """Every array :func:`save_book` writes is there with its shape; else an :class:`InputError` naming the file
     and the array (a malformed book is refused, never a traceback)."""
     def bad(name, why):
-        raise InputError(f"{path}: {name}: {why}; not a move book this executor can read (re-run schedule)")
+        raise InputError(f"{path}: {name}: {why}; not a move book this execute stage can read (re-run schedule)")
 
     for name in ("meta", "joints", "status", *(f"floor_{k}" for k in KINDS), "detour_key", "detour_len",
                  "detour_points", "duration_key", "duration_s", "reason_key", "reason_text"):

@@ -78,7 +78,7 @@ class KinematicOracle:
         self.evaluations = 0  # boom-boom clearance evaluations (pairs of configurations), for reports
         self.detours: list[dict[tuple[int, int], Path]] = [{} for _ in self.joints]
         self._detour_id = [np.full((q.shape[0], q.shape[0]), -1, np.int64) for q in self.joints]
-        # certified sweep results of action pairs (pipeline.execution.sweeps): key -> (least, lower); an
+        # certified sweep results of action pairs (pipeline.events.conflicts): key -> (least, lower); an
         # action's sweep is fixed by its boom, kind and nodes (a move's motion never changes once looked at)
         self.sweep_pairs: dict[tuple, tuple[float, float]] = {}
         self._stacked: list[dict | None] = [None for _ in self.joints]

@@ -1,8 +1,9 @@
 """The round's files as one set, checked before any work and published whole.
 
-``<stem>_round.csv`` (the round table), ``<stem>_trajectory.csv`` (spec section 7), ``<stem>_round.json``
-(the summary), ``<stem>_round_face.png``, ``<stem>_round_gantt.png`` and ``<stem>_round_replay.html``;
-for every rig also ``<stem>_actions.csv`` and ``<stem>_interlocks.csv`` (spec section 8),
+``<stem>_round.csv`` (the round table), ``<stem>_trajectory.csv`` (docs/reference.md, section 7), ``<stem>_round.json``
+(the summary), ``<stem>_problem.npz`` (what it was planned on: each boom's joints per hole, who can
+drill what), ``<stem>_round_face.png``, ``<stem>_round_gantt.png`` and ``<stem>_round_replay.html``;
+for every rig also ``<stem>_actions.csv`` and ``<stem>_interlocks.csv`` (docs/reference.md, section 8),
 ``<stem>_round_executed.png`` (realised makespans) and ``<stem>_round_executed_replay.html`` (the
 slowest drawn round, executed by events).
 
@@ -31,15 +32,16 @@ from pipeline.core.io import file_md5, publish, same_file, staged_folder, write_
 
 SUFFIXES = {"round": "_round.csv", "trajectory": "_trajectory.csv", "json": "_round.json",
             "face": "_round_face.png", "gantt": "_round_gantt.png", "replay": "_round_replay.html",
-            # executed by events (spec section 8): the actions and interlocks files, realised makespans
+            # executed by events (docs/reference.md, section 8): the actions and interlocks files, realised makespans
             "actions": "_actions.csv", "interlocks": "_interlocks.csv", "executed": "_round_executed.png",
             "executed_replay": "_round_executed_replay.html",
-            "moves": "_moves.npz"}  # the planner's move book, re-used by a round handed on (round/move_file.py)
+            "moves": "_moves.npz",  # the planner's move book, re-used by a round handed on (round/move_file.py)
+            "problem": "_problem.npz"}  # what the round was planned on, loaded by execute (round/problem_file.py)
 # the executed round (pipeline.execute): realised files, the draws, and the figures
 EXECUTED = {"round": "_executed_round.csv", "trajectory": "_executed_trajectory.csv", "json": "_executed.json",
             "actions": "_executed_actions.csv", "interlocks": "_executed_interlocks.csv",
             "draws": "_draws.csv", "makespans": "_executed_makespans.png", "replay": "_executed_replay.html",
-            # an IREDES plan's holes as the executor read them, as CSV: the independent checker's plan
+            # an IREDES plan's holes as the execute stage read them, as CSV: the independent checker's plan
             "plan": "_executed_plan.csv",
             # the as-drilled log: IREDES DRPQual, each hole where the rig's real boom drilled it (plan frame)
             "quality": "_executed_quality.xml"}

@@ -2,7 +2,7 @@
 
 0. the sweeps (:mod:`pipeline.round.seeds`, in bands of ``sweep_band_m`` and ``sweep_more_bands_m``, each
    also with each boom's first and last hole one it can reach from park while the others stand there:
-   :func:`pipeline.round.seeds.clear_ends`) and the spec's baselines (naive, nearest) are timed
+   :func:`pipeline.round.seeds.clear_ends`) and the reference's baselines (naive, nearest) are timed
    (``_time_seeds``); the best is the first candidate and the routing's initial solution (so the
    optimised round is never worse than the better baseline);
 1. :func:`pipeline.round.routing.route` allocates and orders the holes (makespan, no conflicts known; moves
@@ -65,12 +65,12 @@ class RoundPlan:
     inst: Instance | None = None  # the instance the timelines were timed on (detours' durations in move_s)
     book: MoveBook | None = None  # what is known of every move (straight, detour, failed)
     stopped: str = ""  # why the re-optimisation stopped
-    baselines_s: float = 0.0  # seconds of planning_s spent timing the spec's baselines
+    baselines_s: float = 0.0  # seconds of planning_s spent timing the reference's baselines
     postures: dict | None = None  # the posture choice (pipeline.round.postures), where it ran
 
 
 SEEDS = ("sweep -y", "sweep +y")  # the planner's starts (pipeline.round.seeds)
-BASELINES = ("naive", "nearest")  # the spec's, timed after the planning with the same moves and conflicts
+BASELINES = ("naive", "nearest")  # the reference's, timed after the planning with the same moves and conflicts
 
 
 def better(a: Timeline, b: Timeline | None) -> bool:
@@ -142,13 +142,13 @@ class _Start:
     best: Timeline | None = None
     seed: str | None = None
     seeds: dict = field(default_factory=dict)  # kind -> routes (the sweeps and the caller's candidates)
-    baselines: dict = field(default_factory=dict)  # kind -> timeline of the spec's baselines
+    baselines: dict = field(default_factory=dict)  # kind -> timeline of the reference's baselines
     baselines_s: float = 0.0
 
 
 def _time_seeds(inst: Instance, timer: _Timer, clock: _Clock, settings: RoundSettings, baselines: bool,
                 candidates: dict[str, list[list[int]]] | None, say: Callable[[str], None]) -> _Start:
-    """Step 0: the sweeps, the caller's candidates and (``baselines``) the spec's naive and nearest,
+    """Step 0: the sweeps, the caller's candidates and (``baselines``) the reference's naive and nearest,
     each timed; the best is the first candidate and the routing's initial solution."""
     start = _Start()
     if seeded(inst):
@@ -244,7 +244,7 @@ def plan_round(inst: Instance, oracle: ConflictOracle, settings: RoundSettings,
                candidates: dict[str, list[list[int]]] | None = None) -> RoundPlan:
     """The round of ``inst``, by the module docstring's steps; ``book``: the move book to use (default
     :func:`make_book`; one given with moves already known, as for a round handed on, lends their
-    detours' durations); ``baselines``: time the spec's naive and nearest after the sweeps, as
+    detours' durations); ``baselines``: time the reference's naive and nearest after the sweeps, as
     candidates and routing starts (``baselines`` of the plan, ``baselines_s`` of ``planning_s``);
     ``candidates``: more routes to time in step 0 (kind -> routes)."""
     clock = _Clock(settings, time_limit_s)
@@ -373,7 +373,7 @@ def seeded(inst: Instance) -> bool:
 
 
 def seed_routes(inst: Instance, kind: str, band_m: float = 1.0) -> list[list[int]]:
-    """The routes of a seed: the spec's ``naive`` and ``nearest``, or a sweep (:mod:`pipeline.round.seeds`)."""
+    """The routes of a seed: the reference's ``naive`` and ``nearest``, or a sweep (:mod:`pipeline.round.seeds`)."""
     if kind.startswith("sweep"):
         routes = sweep_routes(inst, -1 if "-y" in kind else 1, band_m * (2 if kind.endswith("wide") else 1))
     else:
@@ -395,7 +395,7 @@ def first_where_standing(inst: Instance, routes: list[list[int]]) -> list[list[i
 
 
 def baseline(inst: Instance, oracle, kind: str, settings: RoundSettings, book: MoveBook | None = None) -> Timeline:
-    """The spec's ``naive`` or ``nearest`` round, with the same conflict handling (and, given the
+    """The reference's ``naive`` or ``nearest`` round, with the same conflict handling (and, given the
     planner's ``book``, the same moves)."""
     return timed_routes(inst, oracle, settings, book, seed_routes(inst, kind))
 

@@ -1,4 +1,4 @@
-"""Each hole's posture, chosen with the route (issue 28): alternatives, the choice along routes, the bound.
+"""Each hole's posture, chosen with the route: alternatives, the choice along routes, the bound.
 
 The jumbo8 chain is redundant (8 joints for a 5-D hole), so a hole has many exact, clear joint
 solutions: the feed on one side of the boom head or the other, the q4 / q7 branches. The reach table
@@ -16,7 +16,7 @@ holes of two booms conflict standing (waits). Here:
    either end of its move, that the alternative breaks d_boom with while the hole is entered and drilled
    (the other booms' times from the timeline of the routes, their postures as chosen so far: one pass,
    boom by boom);
-3. :func:`posture_bound`: the spec's lower bound with each move the least over the alternatives, so it
+3. :func:`posture_bound`: the reference's lower bound with each move the least over the alternatives, so it
    stays a bound whatever the planner chooses.
 
 The planner (:func:`pipeline.round.from_plan.schedule_round`) times the seeds on the reach table's
@@ -214,7 +214,7 @@ def _shortest_path(start: torch.Tensor, cand: torch.Tensor, valid: torch.Tensor,
 
 
 def posture_bound(inst: Instance, postures: Postures, limits: Sequence[JointLimits], rig) -> float:
-    """The spec's lower bound (:func:`pipeline.round.bounds.bound_from`) with every move the least over
+    """The reference's lower bound (:func:`pipeline.round.bounds.bound_from`) with every move the least over
     all alternatives of its two holes: a bound on any round that drills each hole at one of them.
     Straight-line move times: a detour is never shorter."""
     B, H, K = postures.ok.shape

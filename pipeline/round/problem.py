@@ -3,15 +3,15 @@
 An :class:`Instance` holds plain arrays, so the stage can fill it from any reach table:
 
 - ``reach (B, H)`` bool: boom b can drill hole h (status ``ok``);
-- ``phases (H, 3)`` s: collaring, penetration and retraction of each hole (spec section 7:
+- ``phases (H, 3)`` s: collaring, penetration and retraction of each hole (docs/reference.md section 7:
   10 s + length at 2.5 m/min + length at 1.0 m/s; :func:`drill_phases`); ``drill_s = phases.sum(1)``;
 - ``move_s (B, H + 1, H + 1)`` s: move time of boom b between its joint solutions of holes i and j,
   index ``H`` being its park (entries of holes b cannot drill are never read);
 - ``precedence``: pairs ``(i, j)``, hole i finished before hole j starts (any booms);
-- ``collars (H, 3)`` and ``base_y (B,)`` for the spec's baselines (side of the centre line, nearest
+- ``collars (H, 3)`` and ``base_y (B,)`` for the reference's baselines (side of the centre line, nearest
   collar), ``park_points (B, 3)``: where each boom's drill end is at park (nearest's first step);
 - ``start (B,)``: the node each boom stands at when the round begins (None: every boom at its park).
-  A round handed on after an interruption (:mod:`pipeline.execution.interrupt`) starts where the booms
+  A round handed on after an interruption (:mod:`pipeline.events.interrupt`) starts where the booms
   stand, at holes already drilled (out of every boom's reach, so not drilled again); every round ends
   at park.
 """

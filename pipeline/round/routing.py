@@ -6,8 +6,8 @@ and end at their own park, reach is the set of allowed vehicles per node, drilli
 and the makespan is the global span of a time dimension. OR-Tools models exactly that, per-vehicle
 transit matrices included (each boom has its own move times), and its guided local search finds
 near-optimal routes for 150 nodes in a few hundred solutions (seconds); it is well kept, on PyPI, and needs no licence.
-CP-SAT, measured (issue 28, docs/benchmarks.md "Joint CP-SAT model against the routing";
-:mod:`pipeline.round.joint_model`): one model of allocation, order and timing with the standing
+CP-SAT, measured (docs/benchmarks.md "Joint CP-SAT model against the routing";
+:mod:`pipeline.rig_benchmarks.joint_cpsat`): one model of allocation, order and timing with the standing
 conflicts, given the planner's wall time on one core, proves no optimum on the demo face or gen 50
 ``twin`` (FEASIBLE, 2 % from its own bound), finds routes 2-4 % shorter than the planner's in its own
 terms, but the timeline (move conflicts, moves blocked at park) falls those routes back to one boom

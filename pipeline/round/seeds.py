@@ -11,7 +11,7 @@ one boom of ``twin`` 3423 s of drilling and the other 2935 s on the demo face), 
 from the same side of the face to the other (so the gap between two neighbours stays about the
 width of a boom's share), up and down in turn within a band (short moves). Both directions are
 seeds; the planner times them like every candidate and keeps what is best. These are starts for the
-routing, not the spec's baselines (:mod:`pipeline.round.baselines` holds those).
+routing, not the reference's baselines (:mod:`pipeline.round.baselines` holds those).
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pipeline.core.errors import ConfigError
 from pipeline.core.settings import parse, rule
 
-# Bounds (conf/round/default.yaml names them): beyond them a search only runs out of time or memory (issue 55:
+# Bounds (conf/round/default.yaml names them): beyond them a search only runs out of time or memory (for example
 # round.postures=1e5 planned for 509 s, then asked for 2.56 TB); each is far above any value measured useful.
 DAY_S = 86_400.0  # wall-time limits (opt-in): a day
 SEED_MAX = 2**31 - 1  # OR-Tools', CP-SAT's and OMPL's seeds are 32-bit

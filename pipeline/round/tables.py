@@ -1,12 +1,12 @@
-"""The round's tables: the round table, the spec's trajectory table, and the summary.
+"""The round's tables: the round table, the reference's trajectory table, and the summary.
 
 - round table: ``hole_id, boom, order, t_start, t_end, q1 .. qn, status, reason``, one row per plan
   hole in plan order; ``t_start``/``t_end`` bound the drilling (collaring to the end of retraction);
   a hole no boom can drill keeps its row (``status = unreachable``, its reason, no boom, no times);
-- trajectory table (spec section 7): ``boom, t, q1 .. qn, event, hole_id``, every boom from park to
+- trajectory table (docs/reference.md, section 7): ``boom, t, q1 .. qn, event, hole_id``, every boom from park to
   park; a row's event names what starts there (park, move, collar, drill, retract, wait, done;
   ``move_unclear``: a move no attempt made certified clear, kept as its straight line: an extension of
-  the spec's events, so that no reader takes it for a checked move).
+  the reference's events, so that no reader takes it for a checked move).
   Moves are the oracle's (the synchronised straight line, or the move's detour: retract or planned,
   stopping at each waypoint), sampled by :meth:`pipeline.round.oracle.KinematicOracle.rows` within
   ``traj_tol_m`` of the planned motion; full-turn

@@ -28,7 +28,7 @@ def _init_solver(name: str, init, boom: Boom, models_dir: Path, specs: Mapping |
     if init is None:
         return None
     if specs is None or init not in specs:
-        raise ConfigError(f"benchmark.solvers.{name}.init = {init!r}: no solver of that name")
+        raise ConfigError(f"solver_benchmark.solvers.{name}.init = {init!r}: no solver of that name")
     return build_solver(init, specs[init], boom, models_dir, specs, safety)
 
 
@@ -36,7 +36,7 @@ HYBRID_ENTRY = ("init",)  # a hybrid entry's own keys: its settings are the `sol
 # keys of a benchmark entry that are the harness's (how many holes, how many timed alone), not the solver's
 HARNESS_KEYS = ("max_holes", "single")
 
-# Bounds of the sizes of a solver entry (conf/benchmark/default.yaml), checked when the benchmark group is parsed:
+# Bounds of the sizes of a solver entry (conf/solver_benchmark/default.yaml), checked when the group is parsed:
 # beyond them a solver only runs out of time or memory. An exact RBF solves a dense train x train system (20 000:
 # 3.2 GB), a swarm or GA evaluates population x holes boom poses a step, the GA's workspace boxes take grid^joints
 # forward kinematics (10^6 on rescue6), and NM's restarts and the peers' limits are iterations of every hole.
@@ -51,7 +51,7 @@ ENTRY_BOUNDS: dict[str, dict[str, tuple[int, int]]] = {  # by kind
 }
 
 
-def check_entry(name: str, spec: Mapping, where: str = "benchmark.solvers") -> None:
+def check_entry(name: str, spec: Mapping, where: str = "solver_benchmark.solvers") -> None:
     """ConfigError naming the first size of the entry ``spec`` out of its range (:data:`ENTRY_BOUNDS`), before any
     solver is built; its other keys are checked when it is built."""
     if not isinstance(spec, Mapping):
@@ -76,12 +76,12 @@ def build_solver(name: str, spec: Mapping, boom: Boom, models_dir: Path, specs: 
     spec = {k: v for k, v in spec.items() if k not in HARNESS_KEYS}
     kind = spec.pop("kind", None)
     if kind not in SOLVER_KINDS:
-        raise ConfigError(f"benchmark.solvers.{name}.kind = {kind!r}: expected one of {list(SOLVER_KINDS)}")
+        raise ConfigError(f"solver_benchmark.solvers.{name}.kind = {kind!r}: expected one of {list(SOLVER_KINDS)}")
     try:
         if kind in ("hybrid", "hybrid_compiled"):
             if safety is None:
-                raise ConfigError(f"benchmark.solvers.{name}: the hybrid solver needs the safety model")
-            unknown_keys(spec, HYBRID_ENTRY, f"benchmark.solvers.{name}",
+                raise ConfigError(f"solver_benchmark.solvers.{name}: the hybrid solver needs the safety model")
+            unknown_keys(spec, HYBRID_ENTRY, f"solver_benchmark.solvers.{name}",
                          "; the hybrid's settings are the solver group (solver.*, conf/solver/hybrid.yaml)")
             init = _init_solver(name, spec.pop("init", None), boom, models_dir, specs, safety)
             settings = hybrid or parse(HybridSettings, {}, "solver")
@@ -97,7 +97,7 @@ def build_solver(name: str, spec: Mapping, boom: Boom, models_dir: Path, specs: 
         if kind == "network":
             from pipeline.learning.network_source import load_network
 
-            unknown_keys(spec, ("network",), f"benchmark.solvers.{name}")
+            unknown_keys(spec, ("network",), f"solver_benchmark.solvers.{name}")
             path = Path(models_dir) / f"{spec.pop('network', name)}.pt"
             return NetworkSolver(boom, load_network(path, boom)[0], name)
         if kind == "nm":
@@ -113,4 +113,4 @@ def build_solver(name: str, spec: Mapping, boom: Boom, models_dir: Path, specs: 
         locks = spec.pop("locks", None)
         return GeneticIK(boom, GAParams(**spec), locks=locks, name=name)
     except TypeError as exc:  # an unknown or missing key in the solver's entry
-        raise ConfigError(f"benchmark.solvers.{name}: {exc}") from None
+        raise ConfigError(f"solver_benchmark.solvers.{name}: {exc}") from None

@@ -1,4 +1,4 @@
-"""The hybrid solver as the labelling function of Omega_sup (spec section 3): it maps hole poses to
+"""The hybrid solver as the labelling function of Omega_sup (docs/reference.md, section 3): it maps hole poses to
 joints for :mod:`pipeline.learning.supervised_set`, which takes it as a callable (learning sits
 below solvers). The stages ``derive_box`` and ``generate`` build it here and pass it in.
 

@@ -7,7 +7,7 @@ hold by projection (each step is clamped into the ranges). Two variants:
   among the many solutions of 6 equations in 8 unknowns;
 * ``couplings``: linear equations between joints appended to the residual, as paper 000 adds
   two to remove the redundancy (its theta2 - theta4 = -180 deg and theta5 + theta1 = -90 deg are
-  written in its own joint zeros; ``solvers.nm_coupled`` in ``conf/benchmark/default.yaml`` gives
+  written in its own joint zeros; ``solvers.nm_coupled`` in ``conf/solver_benchmark/default.yaml`` gives
   their jumbo8 equivalent).
 """
 

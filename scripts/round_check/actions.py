@@ -1,4 +1,4 @@
-"""The actions and interlocks files of spec section 8, read and held against the trajectory file.
+"""The actions and interlocks files of docs/reference.md section 8, read and held against the trajectory file.
 
 Actions file: ``boom, action, kind, hole_id, t_start, t_end``; interlocks file: ``boom, action,
 after_boom, after_action`` (action ``action`` of ``boom`` starts only once ``after_action`` of
@@ -294,7 +294,7 @@ def _drills(acts: Actions, k: np.ndarray, r: BoomRows, where: str, trajectory: P
         if moved > HOLD_TOL:  # an executed drill lasts what the rock takes: its joints must not depend on when
             raise InputError(f"{where}, row {acts.line[i]}: drill of hole {h}: the joints change by {moved:.3g} "
                              f"between its collar and the end of its retraction in {trajectory} (rows "
-                             f"{r.line[c]}-{r.line[end]}); a drill is at constant joints (spec section 8)")
+                             f"{r.line[c]}-{r.line[end]}); a drill is at constant joints (reference, section 8)")
     extra = sorted(set(r.hole[collars]) - set(acts.hole[k]))
     if extra:
         raise InputError(f"{where}: collars hole(s) {extra} in {trajectory} that are no drill action of it")

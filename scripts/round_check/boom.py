@@ -2,7 +2,7 @@
 collision bodies (capsules) and a lever-arm bound of how far a body point moves per unit of each joint;
 optionally a calibrated model on it (a ``boom-ik/error-model/1`` file, docs/calibration.md).
 
-Modified (Craig) D-H, spec section 1: ``T(i-1, i) = RotX(alpha_{i-1}) TransX(a_{i-1}) RotZ(theta_i)
+Modified (Craig) D-H, docs/reference.md section 1: ``T(i-1, i) = RotX(alpha_{i-1}) TransX(a_{i-1}) RotZ(theta_i)
 TransZ(d_i)``; YAML row i holds alpha_{i-1}, a_{i-1} and the offsets of theta_i and d_i.
 
 A calibrated row is ``E_i T(i-1, i)``: the error twist ``xi_i = (rx, ry, rz, tx, ty, tz)`` is written in

@@ -1,5 +1,5 @@
 """A planned round's robustness certified exactly: d_boom for *every* choice of drilling durations, not
-for sampled ones (issue 55).
+for sampled ones.
 
 **Segments.** Each boom's timeline is cut into segments, each a fixed set of configurations whatever
 the durations:

@@ -50,7 +50,7 @@ USAGE = """python scripts/check_round.py <stem>_trajectory.csv [hydra overrides,
         [--draws F] [--realised] [--other-tunnel]"""
 
 
-# a set's file names after its stem: the planned set, and the realised one the executor writes
+# a set's file names after its stem: the planned set, and the realised one the execute stage writes
 NAMES = {False: {"trajectory": "_trajectory.csv", "round": "_round.csv", "summary": "_round.json",
                  "actions": "_actions.csv", "interlocks": "_interlocks.csv", "zones": "_zones.csv"},
          True: {"trajectory": "_executed_trajectory.csv", "round": "_executed_round.csv", "summary": "_executed.json",
@@ -110,7 +110,7 @@ def _plan_path(summary: dict, path: Path, plan) -> Path:
         raise InputError(f"{path}: no `plan` field naming the drill plan: give --plan")
     holes = summary.get("plan_holes")
     if p.lower().endswith(".xml") and isinstance(holes, str) and holes and Path(holes).name == holes:
-        # an IREDES plan: the holes the executor read from it, as CSV, beside the JSON (docs/round.md)
+        # an IREDES plan: the holes the execute stage read from it, as CSV, beside the JSON (docs/round.md)
         return path.parent / holes
     p = Path(p)
     return project_path(p)  # as the stage resolves a relative plan: in the checkout (else the working directory)
@@ -280,7 +280,7 @@ def check(trajectory, overrides=(), round_csv=None, summary=None, plan=None, spa
 # bounds of the arguments (docs/round.md, "Output and exit codes"): outside them a check would only run out of
 # memory or time (--spacing-m 1e-9 samples every body point each nanometre), never judge better
 SPACING_M = (1e-3, 1.0)
-MAX_DRAWS = 10_000  # --execute: random draws, each swept for d_boom (the stage's execution.draws has the same bound)
+MAX_DRAWS = 10_000  # --execute: random draws, each swept for d_boom (the stage's draws.count has the same bound)
 MAX_SEED = 2**32 - 1
 
 

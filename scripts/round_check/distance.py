@@ -1,9 +1,9 @@
 """Distances, batched over any leading shape: clamped segment-segment distance (any dimension) and the
-horseshoe tunnel's signed distances (spec section 2), exact over a whole segment. A tunnel of any
+horseshoe tunnel's signed distances (docs/reference.md, section 2), exact over a whole segment. A tunnel of any
 cross-section (``tunnel=profile``) is :mod:`.profile`'s; :class:`Horseshoe` and its :class:`~.profile.Profile`
 answer the sweep alike (``clearances(p0, p1)``, ``describe()``).
 
-Tunnel convention (the YAML's and the spec's, in the rig frame's (y, z) plane): floor z = 0, walls
+Tunnel convention (the YAML's and the reference's, in the rig frame's (y, z) plane): floor z = 0, walls
 |y| = width/2 for z in [0, wall_height], arch the upper semicircle of radius width/2 centred at
 (0, wall_height). Each surface's distance is the exact distance to that piece of the outline,
 positive inside the profile and negative beyond it; a body's clearance to a surface is that distance

@@ -1,4 +1,4 @@
-"""The execution rule of spec section 8, the checker's own: an action starts once its boom's previous
+"""The execution rule of docs/reference.md section 8, the checker's own: an action starts once its boom's previous
 action and every action it is interlocked after have ended; a move keeps its planned duration, a drill
 takes its drawn one. Vectorised over draws: actions are taken level by level of the dependency graph
 (sequence and interlock edges), so the loop runs over the graph's depth, never over draws.
@@ -10,8 +10,8 @@ makes the execution depend on which boom comes first, so it is run draw by draw,
 (:func:`execute_zones`; the plain rule keeps the vectorised form); a draw in which every boom left waits
 for another is a deadlock of that draw.
 
-The draws of issue 27's targets: the spec durations; ``n`` draws with every hole's drilling uniform in
-0.7-1.5x its spec time; every hole alone at 3x (the others at 1x); each boom in turn at 1.5x while the
+The draws: the model durations; ``n`` draws with every hole's drilling uniform in
+0.7-1.5x its model time; every hole alone at 3x (the others at 1x); each boom in turn at 1.5x while the
 others run at 0.7x.
 """
 
@@ -138,7 +138,7 @@ def execute_zones(acts: Actions, g: Graph, zones: Zones, duration: np.ndarray
 @dataclass
 class Draws:
     labels: list[str]
-    factor: np.ndarray  # (draws, holes): drilling time over its spec time
+    factor: np.ndarray  # (draws, holes): drilling time over its model time
     holes: list[str]
     kinds: list[str] = field(default_factory=list)  # a draws file's label kind per draw, "" for the checker's own
 
@@ -155,7 +155,7 @@ def draws(holes: list[str], boom_of: np.ndarray, booms: list[str], n: int, seed:
     """The nominal draw first; then ``n`` random ones; with ``fixed``, each hole alone at 3x and each
     boom slow while the others are quick (``boom_of``: the boom index that drills each hole)."""
     H = len(holes)
-    parts, labels = [np.ones((1, H))], ["nominal (spec durations)"]
+    parts, labels = [np.ones((1, H))], ["nominal (model durations)"]
     rng = np.random.default_rng(seed)
     parts.append(rng.uniform(*RANDOM, (n, H)))
     labels += [f"random {i} (seed {seed})" for i in range(n)]
@@ -202,7 +202,7 @@ def read_draws(path: Path, plan_ids: list[str], holes: list[str]) -> tuple[Draws
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise InputError(f"{path}: row {i + 2}: factor = {df['factor'].iloc[i]!r} is not a finite number > 0 (a "
-                         f"drilling duration over its spec time; {int(bad.sum())} such row(s))")
+                         f"drilling duration over its model time; {int(bad.sum())} such row(s))")
     twice = pd.DataFrame({"d": draw, "h": hole}).duplicated(keep=False).to_numpy()
     if twice.any():
         rows = np.flatnonzero(twice & (draw == draw.iloc[int(np.flatnonzero(twice)[0])]).to_numpy()

@@ -1,5 +1,5 @@
 """The executed rounds: the draws run by the checker's execution rule, each checked for deadlock, for
-reproducing the trajectory file under the spec durations, and for d_boom at every instant.
+reproducing the trajectory file under the model durations, and for d_boom at every instant.
 
 Self and tunnel clearances do not depend on timing (every action's motion is fixed, a pause stands
 where an action left the boom), so they are checked once, on the trajectory file. Boom-boom: per pair
@@ -27,12 +27,12 @@ from .files import BoomRows
 from .settings import Settings
 from .sweep import Sweep
 
-MAKESPAN_TOL = 1.0  # s: spec section 8, "same makespan within 1 s"
+MAKESPAN_TOL = 1.0  # s: docs/reference.md section 8, "same makespan within 1 s"
 MAX_MESSAGES = 20
 
 
 def durations(acts: Actions, spec_s: dict[str, float], dr: Draws) -> np.ndarray:
-    """``(draws, n)``: moves as planned, a drill its spec time times the draw's factor for its hole."""
+    """``(draws, n)``: moves as planned, a drill its model time times the draw's factor for its hole."""
     dur = np.broadcast_to(acts.t_end - acts.t_start, (len(dr.labels), len(acts))).copy()
     drill = np.flatnonzero(acts.kind == "drill")
     col = {h: i for i, h in enumerate(dr.holes)}
@@ -45,7 +45,7 @@ def durations(acts: Actions, spec_s: dict[str, float], dr: Draws) -> np.ndarray:
 def _window_rows(r: BoomRows, planned: np.ndarray, episode: int, s_exec: float, w0: float, w1: float,
                  still: bool = False) -> BoomRows:
     """A boom's rows over executed [w0, w1]: a move's rows shifted to its executed start (a move keeps
-    its planned duration), a pause or a drill (``still``: at constant joints, spec section 8, checked when
+    its planned duration), a pause or a drill (``still``: at constant joints, docs/reference.md section 8, checked when
     the actions are read) standing still. A drill lasts what the draw says, not what the plan did: its
     rows shifted by its start would run past its planned end into the boom's next action."""
     if episode % 2 == 0 or still:
@@ -176,16 +176,16 @@ def _nominal(acts: Actions, rows: dict[str, BoomRows], s: np.ndarray, e: np.ndar
     msgs = []
     mk, want = float(e.max()) if len(e) else 0.0, max(float(r.t[-1]) for r in rows.values())
     if abs(mk - want) > MAKESPAN_TOL:
-        msgs.append(f"execution with the spec durations: makespan {mk:.3f} s, the trajectory file's {want:.3f} s "
+        msgs.append(f"execution with the model durations: makespan {mk:.3f} s, the trajectory file's {want:.3f} s "
                     f"(more than {MAKESPAN_TOL:g} s apart)")
     off = (np.abs(s - acts.t_start) > TIME_TOL) | (np.abs(e - acts.t_end) > TIME_TOL)
     for k in np.flatnonzero(off)[:MAX_MESSAGES]:
         why = " (an interlock it waits for holds it longer)" if s[k] > acts.t_start[k] else (
             " (no interlock holds it until its planned start)")
-        msgs.append(f"execution with the spec durations: {acts.name(k)} runs {s[k]:.6f}..{e[k]:.6f} s, planned "
+        msgs.append(f"execution with the model durations: {acts.name(k)} runs {s[k]:.6f}..{e[k]:.6f} s, planned "
                     f"{acts.t_start[k]:.6f}..{acts.t_end[k]:.6f} s{why}")
     if off.sum() > MAX_MESSAGES:
-        msgs.append(f"execution with the spec durations: {int(off.sum()) - MAX_MESSAGES} more actions off their "
+        msgs.append(f"execution with the model durations: {int(off.sum()) - MAX_MESSAGES} more actions off their "
                     "planned times")
     return msgs
 

@@ -1,6 +1,6 @@
 """Reading a round's files, refusing what cannot be judged (:class:`InputError`, exit 2).
 
-Rows are named by file line (the header is line 1). The trajectory file is spec section 7's: columns
+Rows are named by file line (the header is line 1). The trajectory file is docs/reference.md section 7's: columns
 ``boom, t, q1 .. q8, event, hole_id``, each boom's rows in strictly increasing t.
 
 Sizes are bounded before a file is parsed, so a malformed file is named, never a reason to run out of
@@ -30,7 +30,7 @@ HOLE_EVENTS = ("collar", "drill", "retract")
 ROUND_COLUMNS = ["hole_id", "boom", "t_start", "t_end", "status"]
 PLAN_COLUMNS = ["hole_id", "collar_x", "collar_y", "collar_z", "toe_x", "toe_y", "toe_z"]
 STATUSES = {"ok", "unreachable", "invalid"}
-INTERRUPTED = "interrupted"  # a realised round's hole its boom stopped (spec section 8): realised sets only
+INTERRUPTED = "interrupted"  # a realised round's hole its boom stopped (reference, section 8): realised sets only
 TIMED = ("ok", INTERRUPTED)  # statuses whose rows carry the drilling's times
 
 
@@ -205,7 +205,7 @@ def read_plan(path: Path) -> Plan:
     NaN coordinates: the planner reports such a row as ``invalid`` and does not drill it."""
     if path.suffix.lower() == ".xml":
         raise InputError(f"{path}: an IREDES plan; the independent checker reads CSV plans only: pass the same holes "
-                         "as CSV with --plan (the executor writes them into its set: <stem>_executed_plan.csv)")
+                         "as CSV with --plan (the execute stage writes them into its set: <stem>_executed_plan.csv)")
     df = _table(path, "drill plan")
     _require(df, PLAN_COLUMNS, path)
     ids = df["hole_id"].str.strip()

@@ -8,8 +8,8 @@ moves start at their t_start, drills at theirs, the boom still between them), ea
 the trajectory's drilling of its hole, and every interlock held in those times (the waiting action
 starts no earlier than the one it waits for ends); with a zones file, no two booms were inside one zone
 at once (two sections of one zone, of two booms, overlap by more than the time tolerance). Nothing is
-re-executed with spec durations: the times are the rock's, not the model's. A disagreement is a
-violation (exit 1) here, not an input error: the realised set is what is judged, and an executor that
+re-executed with model durations: the times are the rock's, not the model's. A disagreement is a
+violation (exit 1) here, not an input error: the realised set is what is judged, and an execute stage that
 writes its times wrong has failed.
 """
 
@@ -58,7 +58,7 @@ def follow(acts: Actions, locks: Interlocks, zones: Zones, rows: dict[str, BoomR
                                 f"({zones.path} rows {zones.line[i]}, {zones.line[j]})")
     return msgs, {
         "checked": True, "mode": "realised: the actions' times held against the trajectory and the interlocks; "
-                                 "no re-execution with spec durations",
+                                 "no re-execution with model durations",
         "actions": str(acts.path), "interlocks": str(locks.path),
         "actions_per_boom": {b: int(n) for b, n in zip(acts.booms, np.diff(acts.first), strict=True)},
         "interlock_rows": int(len(locks.after)), "interlocks_broken": int(len(broken)),

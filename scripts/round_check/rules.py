@@ -1,5 +1,5 @@
 """Checks on the rows themselves: joint limits, joint speeds, park at both ends, the planner's own
-flags, every plan hole drilled once at its joints for its spec time, and the makespan.
+flags, every plan hole drilled once at its joints for its model time, and the makespan.
 
 Each check returns messages naming the boom, the time and the hole (:class:`Context`).
 """
@@ -111,11 +111,11 @@ def unclear_moves(boom: RigBoom, r: BoomRows, ctx: Context) -> list[str]:
 def holes(st: Settings, rows: dict[str, BoomRows], table: pd.DataFrame, plan: Plan, collar_tol_m: float,
           angle_tol_rad: float, realised: bool = False) -> tuple[list[str], dict]:
     """Every plan hole drilled once (or reported not drilled), at joints that put the drill end on its
-    collar along its direction, held still for exactly the spec time.
+    collar along its direction, held still for exactly the model time.
 
-    ``realised`` (an executed round, spec section 8): a drill lasts what the rock took, so its collaring,
-    drilling and retraction are the spec parts times one common factor f > 0 (each part within
-    :data:`TIME_TOL` of f times its spec part, f = the drill's duration over its spec duration); a hole
+    ``realised`` (an executed round, docs/reference.md section 8): a drill lasts what the rock took, so its collaring,
+    drilling and retraction are the model's parts times one common factor f > 0 (each part within
+    :data:`TIME_TOL` of f times its model part, f = the drill's duration over its model duration); a hole
     the table reports ``interrupted`` is drilled at most once (any factor), by its boom at its times."""
     msgs, stats = [], {}
     where = {h: i for i, h in enumerate(plan.ids)}
@@ -150,7 +150,7 @@ def holes(st: Settings, rows: dict[str, BoomRows], table: pd.DataFrame, plan: Pl
         for k, moved in zip(ks[span > HOLD_TOL], span[span > HOLD_TOL], strict=True):
             msgs.append(f"boom {name}, t={r.t[k]:.3f} s, hole {r.hole[k]}: joints move between the collar row "
                         f"and the end of retraction (rows {r.line[k]}-{r.line[k + 3]}, by up to {moved:.3g})")
-        # spec time, part by part
+        # model time, part by part
         pi = np.array([where.get(h, -1) for h in ids], dtype=np.int64)
         known = pi >= 0
         if len(ks):
@@ -158,7 +158,7 @@ def holes(st: Settings, rows: dict[str, BoomRows], table: pd.DataFrame, plan: Pl
             L[known] = np.linalg.norm(plan.toe[pi[known]] - plan.collar[pi[known]], axis=1)
             spec = st.drill_times(L)
             parts = np.stack([r.t[ks + 1] - r.t[ks], r.t[ks + 2] - r.t[ks + 1], r.t[ks + 3] - r.t[ks + 2]], 1)
-            # planned: the spec parts themselves; realised: the spec parts times the drill's own factor
+            # planned: the model's parts themselves; realised: the model's parts times the drill's own factor
             f = parts.sum(1) / spec.sum(1) if realised else np.ones(len(ks))
             off = np.abs(parts - f[:, None] * spec).max(1) > TIME_TOL
             for i in np.flatnonzero(off & np.isfinite(L)):
@@ -168,11 +168,11 @@ def holes(st: Settings, rows: dict[str, BoomRows], table: pd.DataFrame, plan: Pl
                 if realised:
                     with np.errstate(divide="ignore", invalid="ignore"):
                         own = parts[i] / spec[i]
-                    msgs.append(f"{head}: not the spec parts {spec[i, 0]:.6f} + {spec[i, 1]:.6f} + {spec[i, 2]:.6f} "
+                    msgs.append(f"{head}: not the model's parts {spec[i, 0]:.6f} + {spec[i, 1]:.6f} + {spec[i, 2]:.6f} "
                                 f"s of its {L[i]:.4f} m times one factor (the whole drill {f[i]:.6f}x, the parts "
                                 f"{own[0]:.6f}x, {own[1]:.6f}x, {own[2]:.6f}x)")
                 else:
-                    msgs.append(f"{head}; the spec time for its {L[i]:.4f} m is {spec[i, 0]:.6f} + {spec[i, 1]:.6f} "
+                    msgs.append(f"{head}; the model time for its {L[i]:.4f} m is {spec[i, 0]:.6f} + {spec[i, 1]:.6f} "
                                 f"+ {spec[i, 2]:.6f} s")
             for i in np.flatnonzero(np.isfinite(L)):
                 factors.setdefault(str(ids[i]), float(f[i]))

@@ -31,7 +31,7 @@ from .profile import Profile, read_profile
 class RigBoom:
     name: str
     model: BoomModel
-    base: np.ndarray  # (3,) rig frame, no rotation (spec section 7)
+    base: np.ndarray  # (3,) rig frame, no rotation (docs/reference.md, section 7)
     park: np.ndarray  # rad / m
     speed: np.ndarray  # rad/s / m/s, per joint
 
@@ -58,7 +58,7 @@ class Settings:
             self.navigation = Navigation()
 
     def drill_times(self, length: np.ndarray) -> np.ndarray:
-        """``(n, 3)``: collaring, drilling and retraction seconds of holes of ``length`` (spec section 7)."""
+        """``(n, 3)``: collaring, drilling and retraction seconds of holes of ``length`` (reference, section 7)."""
         length = np.asarray(length, float)
         return np.stack([np.full(length.shape, self.collaring_s), length / self.rate_m_per_s,
                          length / self.retract_m_per_s], -1)

@@ -1,4 +1,4 @@
-"""Executing a round by events (issue 27, spec section 8): actions, certified sweep conflicts, robust
+"""Executing a round by events (docs/reference.md section 8): actions, certified sweep conflicts, robust
 interlocks, the execution rule, Monte Carlo draws, and the actions and interlocks files.
 
 The round is a small real twin round (jumbo8 joints by forward kinematics, tests/fk_rounds.py) whose
@@ -14,7 +14,7 @@ from fk_rounds import boom_joints
 from pipeline.assembly.rig import load_rig
 from pipeline.core.config import load_group_file
 from pipeline.core.errors import ConfigError, InputError
-from pipeline.execution.actions import (
+from pipeline.events.actions import (
     Actions,
     actions_of,
     actions_table,
@@ -22,11 +22,11 @@ from pipeline.execution.actions import (
     read_actions,
     read_interlocks,
 )
-from pipeline.execution.executor import execute, realised
-from pipeline.execution.graph import find_cycle, reduce_edges
-from pipeline.execution.interlocks import robust_round
-from pipeline.execution.montecarlo import ExecutionSettings, draws, parse_execution, run, summary
-from pipeline.execution.sweeps import conflicts
+from pipeline.events.conflicts import conflicts
+from pipeline.events.draws import DrawSettings, draws, parse_draws, run, summary
+from pipeline.events.graph import find_cycle, reduce_edges
+from pipeline.events.interlocks import robust_round
+from pipeline.events.rule import execute, realised
 from pipeline.geometry.boom_pair import BoomPair
 from pipeline.motion.path import travel
 from pipeline.motion.timing import motion_from_config, profile
@@ -79,7 +79,7 @@ def test_actions_run_from_park_to_park_with_the_planned_times(round_):
         assert np.array_equal(acts.t_start[moves], tl.move_start[b]) and np.array_equal(acts.t_end[moves], tl.arrive[b])
         drills = mine & acts.is_drill
         assert np.array_equal(acts.t_start[drills], tl.arrive[b][:-1])
-        assert np.allclose(acts.duration[drills], 10 + 4.0 / 2.5 * 60 + 4.0, rtol=0, atol=1e-9)  # spec 7 by hand
+        assert np.allclose(acts.duration[drills], 10 + 4.0 / 2.5 * 60 + 4.0, rtol=0, atol=1e-9)  # section 7 by hand
         assert acts.src[moves][0] == inst.n_holes and acts.dst[moves][-1] == inst.n_holes  # park to park
 
 
@@ -183,7 +183,7 @@ def test_swept_pairs_known_from_an_earlier_round_give_the_same_conflicts(round_)
         oracle.sweep_pairs.update(saved)
 
 
-# ---------------------------------------------------------------- interlocks and the executor
+# ---------------------------------------------------------------- interlocks and the execute stage
 def test_interlocks_order_the_middle_holes_and_the_nominal_round_is_clear(round_):
     inst, oracle, tl, rr = round_
     assert rr.problem is None and rr.stats["conflicts_left"] == 0
@@ -196,7 +196,7 @@ def test_interlocks_order_the_middle_holes_and_the_nominal_round_is_clear(round_
     assert rr.stats["nominal_makespan_s"] >= tl.makespan * 0.9  # a re-timing, not another round
 
 
-def test_executor_with_spec_durations_reproduces_the_nominal_round(round_):
+def test_the_execution_rule_with_model_durations_reproduces_the_nominal_round(round_):
     inst, oracle, _, rr = round_
     ex = execute(rr.actions, rr.interlocks, inst.drill_s)
     assert np.array_equal(ex.start[0], rr.actions.t_start) and np.array_equal(ex.end[0], rr.actions.t_end)
@@ -219,7 +219,7 @@ def _breaks(inst, oracle, acts, edges, factors):
 
 def test_no_draw_breaks_d_boom_with_all_interlocks(round_):
     inst, oracle, _, rr = round_
-    d = draws(rr.actions, ExecutionSettings(draws=100, seed=3))
+    d = draws(rr.actions, DrawSettings(count=100, seed=3))
     assert len(d.labels) == 100 + 10 + 2
     assert _breaks(inst, oracle, rr.actions, rr.interlocks, d.factors) == []
     s = summary(run(rr.actions, rr.interlocks, inst.drill_s, d), rr.timeline.makespan, d)
@@ -246,7 +246,7 @@ def _dense_least(inst, oracle, tl, twin):
 
 def test_deleting_a_needed_interlock_lets_some_draw_break_d_boom(round_, twin):
     inst, oracle, _, rr = round_
-    d = draws(rr.actions, ExecutionSettings(draws=10, seed=1))
+    d = draws(rr.actions, DrawSettings(count=10, seed=1))
     found = []
     for k in range(len(rr.interlocks)):
         fewer = np.delete(rr.interlocks, k, axis=0)
@@ -311,9 +311,9 @@ def test_a_bad_interlocks_file_names_the_file_and_the_row(tmp_path, text, messag
         assert "row 3" in str(e.value) or "row 2" in str(e.value)
 
 
-def test_execution_settings_are_checked():
-    assert parse_execution({"draws": 5}).draws == 5
-    with pytest.raises(ConfigError, match="execution.high"):
-        parse_execution({"low": 1.2, "high": 1.0})
-    with pytest.raises(ConfigError, match="execution.draw"):
-        parse_execution({"draw": 5})
+def test_draw_settings_are_checked():
+    assert parse_draws({"count": 5}).count == 5
+    with pytest.raises(ConfigError, match="draws.high"):
+        parse_draws({"low": 1.2, "high": 1.0})
+    with pytest.raises(ConfigError, match="draws.draw"):
+        parse_draws({"draw": 5})

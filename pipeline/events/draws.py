@@ -1,6 +1,6 @@
 """Drilling durations that are not the model's: the draws, their execution and a summary.
 
-The draws (``conf/execution/default.yaml``), as factors of each hole's section-7 drilling time:
+The draws (``conf/draws/default.yaml``), as factors of each hole's section-7 drilling time:
 
 - ``draws`` random ones, every hole's factor uniform in ``[low, high]`` independently (a seeded numpy
   Generator: the same settings give the same draws), and, with ``stall_p`` > 0, each hole of each
@@ -9,7 +9,7 @@ The draws (``conf/execution/default.yaml``), as factors of each hole's section-7
 - one boom at ``slow_factor`` while the others run at ``quick_factor``, each boom in turn.
 
 ``factors`` (hole id -> factor) fixes named holes' factors in every draw (a hole known to be hard).
-All are executed at once (:func:`pipeline.execution.executor.execute`, vectorised over draws). The
+All are executed at once (:func:`pipeline.events.rule.execute`, vectorised over draws). The
 summary gives the makespan's ratio to the nominal one (p50, p95, max) and the time the booms stood at
 interlocks as a share of the draw's makespan (p95, max), and the deadlocks (the graph is the same for
 every draw, so a deadlock is all or nothing).
@@ -24,21 +24,21 @@ import numpy as np
 
 from pipeline.core.errors import ConfigError
 from pipeline.core.settings import parse, rule
-from pipeline.execution.actions import Actions
-from pipeline.execution.executor import Execution, execute
+from pipeline.events.actions import Actions
+from pipeline.events.rule import Execution, execute
 
-# Bounds (conf/execution/default.yaml): a draw is (holes x actions) floats, each checked for d_boom by the
-# independent checker too, and a factor is a drilling duration over its spec time (issue 55: high=1e300
-# gave a 1.5e302 s makespan, exit 0)
+# Bounds (conf/draws/default.yaml): a draw is (holes x actions) floats, each checked for d_boom by the
+# independent checker too, and a factor is a drilling duration over its model time (high=1e300 would give
+# a 1.5e302 s makespan)
 MAX_DRAWS = 10_000
 MAX_FACTOR = 100.0
 
 
 @dataclass(frozen=True)
-class ExecutionSettings:
-    """``conf/execution/<name>.yaml`` (module docstring)."""
+class DrawSettings:
+    """``conf/draws/<name>.yaml`` (module docstring)."""
 
-    draws: int = field(default=1000, metadata=rule(ge=0, le=MAX_DRAWS))
+    count: int = field(default=1000, metadata=rule(ge=0, le=MAX_DRAWS))
     low: float = field(default=0.7, metadata=rule(gt=0, le=MAX_FACTOR))
     high: float = field(default=1.5, metadata=rule(gt=0, le=MAX_FACTOR))
     seed: int = field(default=0, metadata=rule(ge=0, le=2**32 - 1))
@@ -47,14 +47,10 @@ class ExecutionSettings:
     quick_factor: float = field(default=0.7, metadata=rule(gt=0, le=MAX_FACTOR))
     stall_p: float = field(default=0.0, metadata=rule(ge=0, le=1))
     factors: dict[str, float] = field(default_factory=dict)
-    # the boom the rig really has, for the as-drilled log (pipeline/execution/as_drilled.py): a boom config
-    # file, or a calibrated model file; null: the model the round was planned with
-    true_boom: str | None = None
-    true_boom_model: str | None = None
 
 
-def parse_execution(node: Mapping, source: str = "execution") -> ExecutionSettings:
-    s = parse(ExecutionSettings, node, source)
+def parse_draws(node: Mapping, source: str = "draws") -> DrawSettings:
+    s = parse(DrawSettings, node, source)
     if s.high < s.low:
         raise ConfigError(f"{source}.high = {s.high}: must be >= {source}.low = {s.low}")
     for h, f in s.factors.items():
@@ -67,7 +63,7 @@ def parse_execution(node: Mapping, source: str = "execution") -> ExecutionSettin
     return s
 
 
-def fixed_factors(acts: Actions, factors: Mapping[str, float], source: str = "execution.factors") -> np.ndarray:
+def fixed_factors(acts: Actions, factors: Mapping[str, float], source: str = "draws.factors") -> np.ndarray:
     """``(H,)`` the named holes' fixed factors (1 elsewhere); a name the plan lacks is a ConfigError."""
     out = np.ones(len(acts.hole_ids))
     index = {h: k for k, h in enumerate(acts.hole_ids)}
@@ -86,13 +82,13 @@ class Draws:
     labels: list[str]
 
 
-def draws(acts: Actions, settings: ExecutionSettings) -> Draws:
+def draws(acts: Actions, settings: DrawSettings) -> Draws:
     """The module's draws for the holes ``acts`` drills."""
     H, B = len(acts.hole_ids), len(acts.booms)
     rng = np.random.default_rng(settings.seed)
-    rand = rng.uniform(settings.low, settings.high, size=(settings.draws, H))
+    rand = rng.uniform(settings.low, settings.high, size=(settings.count, H))
     if settings.stall_p > 0:  # drawn after the factors: stall_p = 0 keeps the same draws
-        rand = np.where(rng.random((settings.draws, H)) < settings.stall_p, rand * settings.stall_factor, rand)
+        rand = np.where(rng.random((settings.count, H)) < settings.stall_p, rand * settings.stall_factor, rand)
     drilled = np.unique(acts.hole[acts.is_drill])
     stall = np.ones((len(drilled), H))
     stall[np.arange(len(drilled)), drilled] = settings.stall_factor
@@ -100,7 +96,7 @@ def draws(acts: Actions, settings: ExecutionSettings) -> Draws:
     owner[acts.hole[acts.is_drill]] = acts.boom[acts.is_drill]
     booms = [b for b in range(B) if (owner == b).any()]
     slow = np.where(owner[None, :] == np.array(booms)[:, None], settings.slow_factor, settings.quick_factor)
-    labels = (["random"] * settings.draws + [f"stall {acts.hole_ids[h]}" for h in drilled]
+    labels = (["random"] * settings.count + [f"stall {acts.hole_ids[h]}" for h in drilled]
               + [f"slow {acts.booms[b]}" for b in booms])
     fixed = fixed_factors(acts, settings.factors)
     named = fixed != 1.0

@@ -1,4 +1,4 @@
-"""A planned timeline as each boom's actions (spec section 8), and the actions and interlocks files.
+"""A planned timeline as each boom's actions (docs/reference.md, section 8), and the actions and interlocks files.
 
 Boom b with route ``h_0 .. h_{n-1}`` has actions ``0 .. 2n``: ``move`` park -> h_0, ``drill`` h_0,
 ``move`` h_0 -> h_1, ..., ``drill`` h_{n-1}, ``move`` h_{n-1} -> park. Planned times: a move is
@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.core.errors import InputError
-from pipeline.execution.graph import find_cycle
+from pipeline.events.graph import find_cycle
 from pipeline.round.problem import Instance
 from pipeline.round.timeline import Timeline
 
@@ -146,7 +146,7 @@ def actions_from_table(df: pd.DataFrame, booms, hole_ids, source: str = "actions
 
 
 def actions_table(acts: Actions) -> pd.DataFrame:
-    """The spec's actions file: ``boom, action, kind, hole_id, t_start, t_end``."""
+    """The reference's actions file: ``boom, action, kind, hole_id, t_start, t_end``."""
     return pd.DataFrame({
         "boom": [acts.booms[b] for b in acts.boom], "action": acts.index.astype(int), "kind": acts.kind,
         "hole_id": [acts.hole_ids[h] if h >= 0 else "" for h in acts.hole],
@@ -154,7 +154,7 @@ def actions_table(acts: Actions) -> pd.DataFrame:
 
 
 def interlocks_table(acts: Actions, edges: np.ndarray) -> pd.DataFrame:
-    """The spec's interlocks file from edges ``(before, after)``, sorted by the waiting action."""
+    """The reference's interlocks file from edges ``(before, after)``, sorted by the waiting action."""
     e = np.asarray(edges, int).reshape(-1, 2)
     e = e[np.lexsort((e[:, 0], e[:, 1]))]
     before, after = e[:, 0], e[:, 1]

@@ -2,7 +2,7 @@
 
 "As drilled" is through the rig's real kinematics (docs/reference.md, "The as-drilled log"): the collar is the
 tool point of the joints the boom held while drilling, computed by the boom the rig really has
-(``execution.true_boom`` / ``execution.true_boom_model``: a boom config or a calibrated model file; by default
+(``execute.true_boom`` / ``execute.true_boom_model``: a boom config or a calibrated model file; by default
 the model the round was planned with), the toe is at the hole's drilled length along that boom's drilling
 direction. A hole stopped early is logged ``Interrupted``, its toe at the depth its drilling had reached (its
 time at the drill, less collaring, at its penetration rate, both scaled by how slow its rock was). Points go
@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from pipeline.execution.actions import Actions
+from pipeline.events.actions import Actions
 from pipeline.geometry.kinematics import Boom
 from pipeline.plans.drpqual import LOG_COLUMNS
 from pipeline.plans.model import COORDS, DrillPlan

@@ -1,10 +1,10 @@
-"""Two measurements of a rig on a plan (issue 19, docs/rig.md, docs/benchmarks.md):
+"""Two measurements of a rig on a plan (docs/rig.md, docs/benchmarks.md):
 
 * :func:`redundancy` -- what the boom's redundancy saves in move time. Each boom takes the holes it can
   drill (ok in the reach table) in the plan's order, from its park. *Independent* solutions are the reach
   table's (each hole on its own: the largest clearance). *Chained* ones solve each hole from the previous
   hole's joints (the first from park) with the hybrid's ``prefer: start``, so among the hole's ok
-  solutions the one nearest the previous one is kept. Both sums use the spec's synchronised move time
+  solutions the one nearest the previous one is kept. Both sums use the reference's synchronised move time
   (:func:`pipeline.motion.timing.move_time`) between consecutive configurations, park -> first -> ... ->
   last; they time straight joint-space moves, not checked ones (the move benchmark checks moves).
   *Nearest* keeps, per hole, whichever of the two (chained, independent) is the quicker move from the

@@ -1,9 +1,9 @@
-"""Interlocks that make a planned round robust (spec section 8): an action dependency graph.
+"""Interlocks that make a planned round robust (docs/reference.md, section 8): an action dependency graph.
 
 **Construction.**
 
-1. The plan's actions (:func:`pipeline.execution.actions.actions_of`) and every pair of actions of two
-   booms that *conflict* (:mod:`pipeline.execution.sweeps`: their sweeps come within d_boom plus the
+1. The plan's actions (:func:`pipeline.events.actions.actions_of`) and every pair of actions of two
+   booms that *conflict* (:mod:`pipeline.events.conflicts`: their sweeps come within d_boom plus the
    oracle's margin at some relative timing; certified).
 2. Every conflicting pair is ordered, earlier first by the key ``(t_start, t_end, boom, action)`` of
    the plan: a pair that does not overlap in the plan keeps its planned order; one that overlaps
@@ -24,7 +24,7 @@
    ends after at most one flip per conflicting pair. When no flip is possible the pair is reported
    (``RobustRound.problem``), never hidden.
 5. Interlocks implied by others and the sequences are dropped (transitive reduction of the DAG,
-   :func:`pipeline.execution.graph.reduce_edges`: a reachability matrix, cheap for hundreds of
+   :func:`pipeline.events.graph.reduce_edges`: a reachability matrix, cheap for hundreds of
    actions); the execution is the same with or without them.
 
 **Why any execution is then clear** (the robustness argument). Let T be the re-timed nominal
@@ -43,7 +43,7 @@ before its first action at park = start(a_0), after its last at park = end(a_las
   move), which the scan found clear. Two standing booms: the same with the four neighbour actions.
 
 Self and tunnel clearances do not depend on timing (each move's motion is the planned one). Every
-hole is drilled once (each drill is one action). With the nominal durations the executor reproduces
+hole is drilled once (each drill is one action). With the nominal durations the execute stage reproduces
 T exactly (T is that execution).
 """
 
@@ -54,10 +54,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.execution.actions import Actions, actions_of
-from pipeline.execution.executor import Execution, execute, realised
-from pipeline.execution.graph import find_cycle, reduce_edges
-from pipeline.execution.sweeps import Conflicts, conflicts
+from pipeline.events.actions import Actions, actions_of
+from pipeline.events.conflicts import Conflicts, conflicts
+from pipeline.events.graph import find_cycle, reduce_edges
+from pipeline.events.rule import Execution, execute, realised
 from pipeline.round.problem import Instance
 from pipeline.round.timeline import Timeline, scan
 

@@ -1,4 +1,4 @@
-"""An interrupted round (spec section 8): a hole that cannot be finished, and the round handed on.
+"""An interrupted round (docs/reference.md, section 8): a hole that cannot be finished, and the round handed on.
 
 **What happens when hole X is interrupted** ``at_s`` seconds into its drilling (decided here, in
 ``docs/round.md``): X's boom stops drilling there (X's drill action ends then: the hole is *left*,
@@ -11,7 +11,7 @@ where X drills very long) and is clear at every instant, standing included.
 Then, when the last of them ends (``t_hand``), the round is **handed on**: the holes not yet started
 are planned again (:func:`pipeline.round.planner.plan_round` on the instance with each boom starting where
 it stands, ``Instance.start``; a boom standing at a hole it has not drilled drills it first), made
-robust (:func:`pipeline.execution.interlocks.robust_round`) and executed from ``t_hand``. Every boom's
+robust (:func:`pipeline.events.interlocks.robust_round`) and executed from ``t_hand``. Every boom's
 first new action waits for every other boom's last prefix action (a barrier: the new plan was made for
 the booms standing where they stand). With ``replan: false`` the round instead goes on with its own
 actions and interlocks (X's drill merely shorter: a robust round is clear for any duration), nothing
@@ -19,7 +19,7 @@ re-planned.
 
 :func:`splice` joins the two: the executed prefix and the new plan, one actions list (each boom's
 actions numbered on), the interlocks (the prefix's own, the new plan's, the barrier) and each action's
-trajectory rows, so the handed-on round is one spec-7 trajectory file and one actions file.
+trajectory rows, so the handed-on round is one section-7 trajectory file and one actions file.
 """
 
 from __future__ import annotations
@@ -32,9 +32,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.core.errors import ConfigError, Deadlock
-from pipeline.execution.actions import Actions
-from pipeline.execution.executor import execute
-from pipeline.execution.trajectory import Rows
+from pipeline.events.actions import Actions
+from pipeline.events.rule import execute
+from pipeline.events.trajectory import Rows
 
 
 @dataclass(frozen=True)
@@ -130,7 +130,7 @@ def hand_on(inst, oracle, settings, st: Standing, say=None, book=None, planned_o
     looked at again. ``planned_order``: per boom the holes left in the planned round's order: a seed of
     the new plan beside the sweeps, and the first candidate tried when the new plan cannot be made
     robust (then the sweeps)."""
-    from pipeline.execution.interlocks import robust_round
+    from pipeline.events.interlocks import robust_round
     from pipeline.round.planner import SEEDS, first_where_standing, plan_round, seed_routes, timed_routes
 
     t0 = time.perf_counter()
@@ -168,7 +168,7 @@ def hand_on(inst, oracle, settings, st: Standing, say=None, book=None, planned_o
 @dataclass(frozen=True)
 class Spliced:
     """The handed-on round as one: actions (``t_start``/``t_end``: the times each action's rows were
-    planned at, for :func:`pipeline.execution.trajectory.retimed`), the interlocks, each action's rows,
+    planned at, for :func:`pipeline.events.trajectory.retimed`), the interlocks, each action's rows,
     and which actions are the prefix's."""
 
     actions: Actions
@@ -281,7 +281,7 @@ def interrupted_round(acts: Actions, edges: np.ndarray, rows: list[Rows], st: St
     """The round of ``acts`` (its rows from the planned trajectory file) interrupted as ``st`` says,
     handed on (:func:`hand_on`) and executed: the prefix at its executed times (``drill_s``), the new
     plan's holes at ``factor`` times their planned drilling. The prefix is re-checked to reproduce."""
-    from pipeline.execution.trajectory import action_rows
+    from pipeline.events.trajectory import action_rows
     from pipeline.round.tables import trajectory_table
 
     left = [[int(acts.hole[k]) for k in np.flatnonzero((acts.boom == b) & acts.is_drill & ~st.prefix)]

@@ -2,9 +2,9 @@
 Monte Carlo of drilling durations, and one realised round to look at.
 
 :func:`robust_finish` returns the hook :func:`pipeline.round.from_plan.schedule_round` calls once the
-round is planned (``finish``): it builds the interlocks (:func:`~pipeline.execution.interlocks.robust_round`),
+round is planned (``finish``): it builds the interlocks (:func:`~pipeline.events.interlocks.robust_round`),
 hands back the re-timed nominal timeline (the one the trajectory file is written from, which the
-execution rule reproduces exactly with the spec's durations) and keeps what the stage writes: the
+execution rule reproduces exactly with the reference's durations) and keeps what the stage writes: the
 actions and interlocks tables, the draws' summary, and the slowest random draw as a realised round.
 """
 
@@ -16,10 +16,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from pipeline.execution.actions import actions_table, interlocks_table
-from pipeline.execution.executor import Execution, realised
-from pipeline.execution.interlocks import RobustRound, robust_round
-from pipeline.execution.montecarlo import Draws, ExecutionSettings, draws, run, summary
+from pipeline.events.actions import actions_table, interlocks_table
+from pipeline.events.draws import Draws, DrawSettings, draws, run, summary
+from pipeline.events.interlocks import RobustRound, robust_round
+from pipeline.events.rule import Execution, realised
 from pipeline.round.problem import Instance
 from pipeline.round.timeline import Timeline
 
@@ -39,7 +39,7 @@ class Executed:
     extra: dict = field(default_factory=dict)
 
 
-def robust_finish(settings: ExecutionSettings, say=None):
+def robust_finish(settings: DrawSettings, say=None):
     """``finish(inst, timeline, oracle) -> (timeline, Executed)`` for ``schedule_round``."""
     say = say or (lambda _m: None)
 

@@ -1,4 +1,4 @@
-"""The joint CP-SAT model of the round (issue 28): its optimum against a brute force on tiny planted
+"""The joint CP-SAT model of the round: its optimum against a brute force on tiny planted
 instances, and what every answer must keep (conflicting pairs apart, reach, precedence).
 
 The brute force is independent of the model: every allocation, every order per boom and every order
@@ -13,7 +13,7 @@ import itertools
 import numpy as np
 import pytest
 
-from pipeline.round.joint_model import JointSettings, joint_round, standing_conflicts
+from pipeline.rig_benchmarks.joint_cpsat import JointSettings, joint_round, standing_conflicts
 from pipeline.round.problem import Instance, drill_phases
 
 SETTINGS = JointSettings(max_deterministic_time=5.0)

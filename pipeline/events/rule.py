@@ -1,4 +1,4 @@
-"""The execution rule of spec section 8, over a batch of drilling-time draws at once.
+"""The execution rule of docs/reference.md section 8, over a batch of drilling-time draws at once.
 
 A boom starts an action as soon as its previous action has ended and every interlock of that action
 holds (the action it waits for has ended); a move takes its planned duration, a drill whatever the
@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.core.errors import Deadlock, InputError
-from pipeline.execution.actions import Actions
-from pipeline.execution.graph import topological
+from pipeline.events.actions import Actions
+from pipeline.events.graph import topological
 from pipeline.round.problem import Instance
 from pipeline.round.timeline import Timeline
 

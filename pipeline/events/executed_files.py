@@ -15,9 +15,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from pipeline.execution.actions import Actions
-from pipeline.execution.montecarlo import Draws
-from pipeline.execution.trajectory import Rows
+from pipeline.events.actions import Actions
+from pipeline.events.draws import Draws
+from pipeline.events.trajectory import Rows
 
 LONG_SHOWN = 10  # the holes that ran longest, named in the summary
 

@@ -1,12 +1,12 @@
-"""The round benchmark (issue 20): faces x rigs, every figure of the round in one run.
+"""The round benchmark: faces x rigs, every figure of the round in one run.
 
 Faces: the demo face and generated faces (:func:`pipeline.plans.faces.generated_face`, seeded) of
 about the requested hole counts, each designed for the rig's own drift (trio: the 8 m x 7 m one).
 Rigs: any of conf/rig/. Per cell: makespan, lower bound and ratio, naive and nearest, moving and
 waiting seconds, planning seconds, smallest boom-boom clearance, waits, fallback, moves not clear.
 Every cell uses :func:`pipeline.round.from_plan.schedule_round`, as the stage does, and (given the
-``execution`` settings, as the stage passes them) the round made robust as the stage makes it
-(:func:`pipeline.execution.robust.robust_finish`): the clock-timed plan's makespan, the nominal one with
+``draws`` settings, as the stage passes them) the round made robust as the stage makes it
+(:func:`pipeline.events.robust_round.robust_finish`): the clock-timed plan's makespan, the nominal one with
 interlocks (the price of robustness), the interlocks, and the draws' makespan ratios and standing shares.
 With a ``trajectories`` folder every cell's set is written there as the stage writes a round (plan, round
 table, JSON, trajectory, actions, interlocks), so the independent checker can execute each one.
@@ -22,16 +22,15 @@ from pathlib import Path
 import pandas as pd
 
 from pipeline.core.io import write_csv
-from pipeline.data.holes import joint_box
-from pipeline.execution.montecarlo import ExecutionSettings
-from pipeline.execution.robust import robust_finish
+from pipeline.events.draws import DrawSettings
+from pipeline.events.robust_round import robust_finish
 from pipeline.geometry.collision import SafetyModel
 from pipeline.geometry.rig import Rig
 from pipeline.motion.timing import MotionModel
 from pipeline.plans.csv_plan import write_csv_plan
 from pipeline.plans.demo_face import demo_face
 from pipeline.plans.faces import generated_face
-from pipeline.plans.reach import reach_table, rig_solvers
+from pipeline.plans.reach import solved_reach
 from pipeline.round.from_plan import schedule_round
 from pipeline.round.output import round_paths, write_round_set
 from pipeline.round.postures import round_postures
@@ -51,11 +50,11 @@ class BenchRig:
 
 def round_benchmark(faces: Sequence, rigs: Sequence[BenchRig], hybrid: HybridSettings, settings: RoundSettings,
                     first_start: Callable, seed: int = 0, say=print, trajectories: Path | None = None,
-                    box: dict | None = None, execution: ExecutionSettings | None = None) -> pd.DataFrame:
+                    box: dict | None = None, draw_settings: DrawSettings | None = None) -> pd.DataFrame:
     """One row per (face, rig); ``faces``: "demo" or hole counts; ``trajectories``: a folder to write
     each cell's set into (``<face>_<rig>.csv``, the plan, and its ``_round.csv``, ``_round.json``,
     ``_trajectory.csv``, ``_actions.csv``, ``_interlocks.csv``); ``box``: the reach table's joint box
-    (``holes.sup.box``, as the stage passes it: None is the full ranges); ``execution``: the round made
+    (``holes.sup.box``, as the stage passes it: None is the full ranges); ``draw_settings``: the round made
     robust and its draws (module docstring), None for the clock-timed round alone."""
     rows = []
     for case in rigs:
@@ -63,11 +62,10 @@ def round_benchmark(faces: Sequence, rigs: Sequence[BenchRig], hybrid: HybridSet
         for face in faces:
             plan = demo_face(safety=safety) if face == "demo" else generated_face(int(face), seed, safety)
             started = time.perf_counter()
-            solvers = rig_solvers(rig, first_start, hybrid, joint_box(rig.booms[0].boom, box))
-            reach = reach_table(plan, rig, solvers, "hybrid")
+            solvers, reach = solved_reach(plan, rig, first_start, hybrid, box, "hybrid")
             postures = round_postures(plan, rig, solvers, reach, motions, settings)
             reach_s = time.perf_counter() - started
-            finish = robust_finish(execution) if execution is not None else None
+            finish = robust_finish(draw_settings) if draw_settings is not None else None
             res = schedule_round(rig, plan, reach, motions, settings, True, True, finish=finish, postures=postures)
             s = res.summary
             row = {"face": f"demo ({len(plan)})" if face == "demo" else f"gen {face} ({len(plan)})",

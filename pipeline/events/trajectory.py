@@ -1,4 +1,4 @@
-"""A trajectory file (spec section 7) for a round executed by events, from the planned trajectory's rows.
+"""A trajectory file (docs/reference.md, section 7) for a round executed by events, from the planned trajectory's rows.
 
 The planned trajectory file holds, per boom, the rows of every action at its planned times. An
 executed round runs the same actions at other times: a move's rows are the planned ones shifted to its
@@ -7,7 +7,7 @@ stretched by one factor (its executed duration over the planned one), and a boom
 two actions (at an interlock) gets a ``wait`` row where it stands. So the realised file is made from
 the planned *file*, not from the planner's state: a round read back from disk can be executed, and a
 round handed on after an interruption splices the rows of two planned files
-(:mod:`pipeline.execution.interrupt`).
+(:mod:`pipeline.events.interrupt`).
 
 :func:`action_rows` cuts a trajectory table into each action's rows (times relative to the action's
 start); :func:`retimed` lays them out at executed times.
@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.core.errors import InputError
-from pipeline.execution.actions import Actions
+from pipeline.events.actions import Actions
 
 TIME_TOL = 1e-6  # s: the actions file's times are the trajectory's, written from the same floats
 

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from pipeline.execution.actions import Actions
+from pipeline.events.actions import Actions
 from pipeline.geometry.compiled_rig import indexed_clearances
 from pipeline.motion.path import travel
 from pipeline.motion.timing import profile

@@ -1,4 +1,4 @@
-"""The round as one CP-SAT model: allocation, order and timing together (issue 28, "Measure, then choose").
+"""The round as one CP-SAT model: allocation, order and timing together ("Measure, then choose").
 
 A measurement against the routing (:mod:`pipeline.round.routing`), not the planner: nothing of the stage
 calls it (docs/benchmarks.md, "Joint CP-SAT model against the routing").

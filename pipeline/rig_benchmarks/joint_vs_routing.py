@@ -1,13 +1,13 @@
-"""The joint CP-SAT model against today's planner, at equal wall time (issue 28, "Measure, then choose").
+"""The joint CP-SAT model against today's planner, at equal wall time ("Measure, then choose").
 
 Per face: the reach table and today's planner as the stage runs it
 (:func:`pipeline.round.from_plan.schedule_round`, counts: its planning wall time is T); then the joint
-model (:mod:`pipeline.round.joint_model`) on the same reach table with straight move times and the
+model (:mod:`pipeline.rig_benchmarks.joint_cpsat`) on the same reach table with straight move times and the
 oracle's standing conflicts, hinted with the better sweep, given ``factor * T`` seconds of wall time
 (model building included); its routes are timed by the planner's own timeline with the planner's move
 book (:func:`pipeline.round.planner.timed_routes`: every move certified, a detour where the straight line
 breaks self or tunnel clearance, waits for every boom-boom conflict), and that makespan is compared.
-docs/benchmarks.md, "Joint CP-SAT model against the routing (issue 28)".
+docs/benchmarks.md, "Joint CP-SAT model against the routing".
 """
 
 from __future__ import annotations
@@ -18,12 +18,11 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import pandas as pd
 
-from pipeline.data.holes import joint_box
 from pipeline.plans.demo_face import demo_face
 from pipeline.plans.faces import generated_face
-from pipeline.plans.reach import reach_table, rig_solvers
+from pipeline.plans.reach import solved_reach
+from pipeline.rig_benchmarks.joint_cpsat import JointSettings, hint_timeline, joint_round, standing_conflicts
 from pipeline.round.from_plan import round_instance, schedule_round
-from pipeline.round.joint_model import JointSettings, hint_timeline, joint_round, standing_conflicts
 from pipeline.round.planner import SEEDS, seed_routes, timed_routes
 from pipeline.round.settings import RoundSettings
 from pipeline.round.timeline import scan, simulate
@@ -33,15 +32,14 @@ from pipeline.solvers.hybrid import HybridSettings
 def joint_vs_routing(faces: Sequence, case, hybrid: HybridSettings, settings: RoundSettings, first_start: Callable,
                      factors: Sequence[float] = (1.0, 2.0), seed: int = 0, box: dict | None = None,
                      random_seed: int = 0, say=print, done: Callable | None = None) -> pd.DataFrame:
-    """One row per (face, wall-time factor); ``case``: a :class:`pipeline.benchmarks.round_faces.BenchRig`;
+    """One row per (face, wall-time factor); ``case``: a :class:`pipeline.rig_benchmarks.round_faces.BenchRig`;
     ``faces``: "demo" or hole counts (:func:`pipeline.plans.faces.generated_face` with ``seed``);
     ``done``: called with the table so far after each row (a long run keeps what it measured)."""
     rig, rows = case.rig, []
     for face in faces:
         plan = demo_face(safety=case.safety) if face == "demo" else generated_face(int(face), seed, case.safety)
         name = f"demo ({len(plan)})" if face == "demo" else f"gen {face} ({len(plan)})"
-        reach = reach_table(plan, rig, rig_solvers(rig, first_start, hybrid, joint_box(rig.booms[0].boom, box)),
-                            "hybrid")
+        _, reach = solved_reach(plan, rig, first_start, hybrid, box, "hybrid")
         res = schedule_round(rig, plan, reach, case.motions, settings, True, True, say)
         s, T = res.summary, res.timings["planning_s"]
         say(f"{name} x {rig.name}: planner {s['makespan_s']:.1f} s (bound {s['lower_bound_s']:.1f} s) in {T:.1f} s")

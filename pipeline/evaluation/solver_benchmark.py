@@ -56,7 +56,7 @@ class BenchmarkSettings:
 
     def __post_init__(self):
         if not isinstance(self.solvers, Mapping):
-            raise ConfigError(f"benchmark.solvers = {self.solvers!r}: expected a mapping method -> entry")
+            raise ConfigError(f"solver_benchmark.solvers = {self.solvers!r}: expected a mapping method -> entry")
         for name, spec in self.solvers.items():
             check_entry(str(name), spec)
 
@@ -67,7 +67,7 @@ def load_holes(holes_dir, groups: list[int], n: int) -> torch.Tensor:
     for group in groups:
         _, pose = read_hole_poses(holes_dir, f"test_group_{group}.parquet")
         if not 1 <= n <= len(pose):
-            raise ConfigError(f"benchmark.holes = {n}: test group {group} has {len(pose)} holes")
+            raise ConfigError(f"solver_benchmark.holes = {n}: test group {group} has {len(pose)} holes")
         poses.append(pose[:n].double())
     return torch.cat(poses)
 
@@ -119,19 +119,20 @@ def build_solvers(methods: list[str], specs: dict, safety, models_dir, start_box
                   hybrid: HybridSettings | None = None) -> dict[str, tuple[Solver, float, int | None]]:
     """Every solver built (networks loaded, RBF fitted) before the first solve: fail early. Each
     comes with its setup time, its ``max_holes`` (None: every hole) and its ``single`` (holes timed alone;
-    None: ``benchmark.single``); a hybrid entry runs with
+    None: ``solver_benchmark.single``); a hybrid entry runs with
     ``hybrid`` (the ``solver`` group)."""
     unknown = [m for m in methods if m not in specs]
     if unknown:
-        raise ConfigError(f"benchmark.methods: {unknown} have no entry under benchmark.solvers ({sorted(specs)})")
+        raise ConfigError(f"solver_benchmark.methods: {unknown} have no entry under solver_benchmark.solvers "
+                          f"({sorted(specs)})")
     solvers = {}
     for m in methods:
         spec = dict(specs[m])
         cap, single = spec.pop("max_holes", None), spec.pop("single", None)
         if cap is not None and (isinstance(cap, bool) or not isinstance(cap, int) or cap < 1):
-            raise ConfigError(f"benchmark.solvers.{m}.max_holes = {cap!r}: expected a positive integer or null")
+            raise ConfigError(f"solver_benchmark.solvers.{m}.max_holes = {cap!r}: expected a positive integer or null")
         if single is not None and (isinstance(single, bool) or not isinstance(single, int) or single < 0):
-            raise ConfigError(f"benchmark.solvers.{m}.single = {single!r}: expected a whole number >= 0 or null")
+            raise ConfigError(f"solver_benchmark.solvers.{m}.single = {single!r}: expected a whole number >= 0 or null")
         start = time.perf_counter()
         try:
             solver = build_solver(m, spec, safety.boom, models_dir, specs, safety, start_box, hybrid)
