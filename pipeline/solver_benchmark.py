@@ -27,7 +27,7 @@ from pipeline.data.holes import joint_box
 from pipeline.evaluation.plots import error_vs_time
 from pipeline.evaluation.solver_benchmark import (
     COLUMNS,
-    BenchmarkSettings,
+    SolverBenchmarkSettings,
     benchmark_all,
     build_solvers,
     load_holes,
@@ -40,7 +40,8 @@ __all__ = ["COLUMNS", "run"]  # the table's columns, as tests read them from the
 
 
 def run(cfg: DictConfig) -> pd.DataFrame:
-    settings = parse(BenchmarkSettings, OmegaConf.to_container(cfg.solver_benchmark, resolve=True), "solver_benchmark")
+    settings = parse(SolverBenchmarkSettings, OmegaConf.to_container(cfg.solver_benchmark, resolve=True),
+                     "solver_benchmark")
     hybrid, tracking = parse(HybridSettings, cfg.solver, "solver"), TrackingSettings.from_config(cfg.tracking)
     data, out = project_path(cfg.paths.data), project_path(cfg.paths.data) / "benchmark"
     safety = build_safety(cfg.boom, cfg.tunnel, cfg.safety)

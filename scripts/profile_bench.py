@@ -23,7 +23,7 @@ from pipeline.assembly.build import build_safety, hole_sampling
 from pipeline.core.config import CONF_DIR, as_dict, compose, project_path
 from pipeline.core.settings import parse
 from pipeline.data.holes import joint_box, sample_holes
-from pipeline.evaluation.solver_benchmark import BenchmarkSettings, build_solvers, measure
+from pipeline.evaluation.solver_benchmark import SolverBenchmarkSettings, build_solvers, measure
 from pipeline.solvers.hybrid import HybridSettings
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
@@ -41,7 +41,7 @@ def main(argv: list[str]) -> None:
     n = int(argv[0]) if argv else 20_000  # 5 000 left the batched rate varying by a third from run to run
     single = int(argv[1]) if len(argv) > 1 else 1000
     cfg = compose(argv[2:])
-    settings = parse(BenchmarkSettings, as_dict(cfg.solver_benchmark), "benchmark")
+    settings = parse(SolverBenchmarkSettings, as_dict(cfg.solver_benchmark), "solver_benchmark")
     hybrid = parse(HybridSettings, cfg.solver, "solver")
     sampling = hole_sampling(cfg.holes)
     box = cfg.holes.sup.get("box")

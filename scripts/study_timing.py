@@ -1,7 +1,7 @@
 """Run the study with ``dvc repro`` and time each stage (docs/benchmarks.md, "The study, stage by stage").
 
     python scripts/study_timing.py --out logs/study_timing.json            # the whole study
-    python scripts/study_timing.py --out logs/t.json -- -f -s benchmark    # arguments after -- go to dvc repro
+    python scripts/study_timing.py --out logs/t.json -- -f -s solver_benchmark    # arguments after -- go to dvc repro
 
 DVC prints ``Running stage '<name>':`` as each stage starts; a stage's time is from that line to
 the next one (or to the end), so it includes DVC's own hashing and caching of the stage's outputs.

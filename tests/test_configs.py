@@ -15,7 +15,7 @@ from pipeline.data.hole_sets import SupervisedSet
 from pipeline.deploy.package import ExportSettings
 from pipeline.derive_box import DeriveBoxSettings
 from pipeline.evaluate import EvalSettings
-from pipeline.evaluation.solver_benchmark import BenchmarkSettings
+from pipeline.evaluation.solver_benchmark import SolverBenchmarkSettings
 from pipeline.events.draws import parse_draws
 from pipeline.execute import parse_execute
 from pipeline.field_boom import FieldBoomSettings
@@ -40,9 +40,9 @@ NODES = {
     TrainSettings: "train",            # train
     ModelSettings: "model",            # train, export_benchmark
     EvalSettings: "eval",              # evaluate
-    BenchmarkSettings: "benchmark",    # benchmark
+    SolverBenchmarkSettings: "solver_benchmark",  # solver_benchmark
     SolveSettings: "solve",            # solve
-    HybridSettings: "solver",          # solve, benchmark (and the round planner)
+    HybridSettings: "solver",          # solve, solver_benchmark (and the round planner)
     ExportSettings: "export",          # export, export_benchmark
     CalibrationSettings: "calibration",  # calibrate
     DeriveBoxSettings: "derive_box",   # derive_box

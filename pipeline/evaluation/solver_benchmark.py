@@ -42,7 +42,7 @@ OK_MM = 0.01  # "ok" for every method alike: hole-seeking error <= 0.01 mm and n
 
 
 @dataclass(frozen=True)
-class BenchmarkSettings:
+class SolverBenchmarkSettings:
     """The ``benchmark`` group (each solver entry is checked by ``build_solver``, ``papers`` by paper_baselines)."""
 
     groups: list[int] = field(metadata=rule(ge=1, le=MAX_TEST_GROUPS, min_items=1, max_items=MAX_TEST_GROUPS))
@@ -145,7 +145,7 @@ def build_solvers(methods: list[str], specs: dict, safety, models_dir, start_box
     return solvers
 
 
-def benchmark_all(solvers: dict, pose: torch.Tensor, safety, settings: BenchmarkSettings,
+def benchmark_all(solvers: dict, pose: torch.Tensor, safety, settings: SolverBenchmarkSettings,
                   mlrun) -> tuple[pd.DataFrame, dict]:
     """Every solver of :func:`build_solvers` measured on ``pose`` (its first ``max_holes``); a solver that
     reports statuses is also checked against the slow reference search. Metrics go to ``mlrun``
