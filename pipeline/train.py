@@ -13,6 +13,9 @@ holds its resume state ``resume.pt``, written every ``runtime.checkpoint_every``
 SIGINT and logged to the run as ``checkpoints/resume.pt``; with ``train.resume=true`` (the default) a
 training with that digest continues from it, in the same MLflow run, to the weights an uninterrupted
 training gives. The folder is removed when the training's files are published.
+
+A config with a ``tour`` node (``experiment=quick``) names the full study's figures, and a training
+prints them beside its own, so that a short training's figure is read for what it is.
 """
 
 from __future__ import annotations
@@ -21,6 +24,8 @@ import logging
 import shutil
 import tempfile
 import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import pandas as pd
@@ -30,8 +35,9 @@ from omegaconf import DictConfig, OmegaConf
 from pipeline.assembly.build import build_safety, hole_sampling
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import resolve_device
+from pipeline.core.errors import ConfigError
 from pipeline.core.io import publish, publish_lock, require_writable, write_csv, write_json
-from pipeline.core.settings import RuntimeSettings
+from pipeline.core.settings import RuntimeSettings, coerce, parse
 from pipeline.core.stage import run_stage, stage_main
 from pipeline.data.tables import POSE_COLUMNS
 from pipeline.evaluation.metrics import solution_table, summarize
@@ -65,11 +71,29 @@ PARAM_KEYS = ["model", "train", "holes.face_x", "holes.cone_deg", "holes.inset",
 NOT_IN_DIGEST = ("runtime",)
 
 
+@dataclass(frozen=True)
+class StudyFigures:
+    """``tour``: what the full study reaches per method on its five test groups (README, "Results"), printed
+    after a shorter training; an experiment without the node prints nothing."""
+
+    hole_mm: dict = field(default_factory=dict)        # mean hole-seeking error, mm
+    collision_pct: dict = field(default_factory=dict)  # collision rate, %
+
+    def __post_init__(self):
+        for key in ("hole_mm", "collision_pct"):
+            if not isinstance(getattr(self, key), Mapping):
+                raise ConfigError(f"tour.{key} = {getattr(self, key)!r}: expected a mapping of method to figure")
+            for method, value in getattr(self, key).items():
+                coerce(value, "float", f"tour.{key}.{method}")
+
+
 def run(cfg: DictConfig) -> dict:
     """Train the configured method; returns the final held-out metrics and the checkpoint path."""
     settings, model_s, tracking = (TrainSettings.from_config(cfg.train), ModelSettings.from_config(cfg.model),
                                    TrackingSettings.from_config(cfg.tracking))
     runtime = RuntimeSettings.from_config(cfg)
+    tour = OmegaConf.select(cfg, "tour")
+    study = None if tour is None else parse(StudyFigures, as_dict(tour), "tour")
     check_method_key(settings.method_key, OmegaConf.select(cfg, settings.method_key))
     method = MethodSettings.from_config(OmegaConf.select(cfg, settings.method_key), settings.method_key)
     device = resolve_device(cfg.device)
@@ -128,6 +152,11 @@ def run(cfg: DictConfig) -> dict:
                      data.val_pose[:4].float().numpy(), inputs)
     log.info("trained %s in %.0f s: held-out hole-seeking error %.2f mm -> %s",
              method.name, final["train_seconds"], final["val_hole_mm"], models_dir / f"{method.name}.pt")
+    if study is not None and method.name in study.hole_mm:
+        collisions = study.collision_pct.get(method.name)
+        log.info("the full study's %s (the README's first command) reaches %.2f mm on its five test groups%s",
+                 method.name, study.hole_mm[method.name],
+                 "" if collisions is None else f", {collisions:g} % collisions")
     return {"checkpoint": str(models_dir / f"{method.name}.pt"), **final}
 
 

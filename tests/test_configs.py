@@ -2,6 +2,7 @@
 option of every group), unknown keys are refused, and every settings class's defaults equal conf/."""
 
 import dataclasses
+import re
 
 import pytest
 from omegaconf import OmegaConf
@@ -303,3 +304,21 @@ def test_quick_overrides_the_one_hybrid_source():
     assert parse(HybridSettings, cfg.solver, "solver").deep_starts == 16
     # the benchmark's entry holds no solver settings: its kind, its first start and how many holes it times alone
     assert set(cfg.solver_benchmark.solvers.hybrid) == {"kind", "init", "single"}
+
+
+def test_the_quick_tour_prints_the_figures_the_docs_report():
+    """``tour`` holds what the full study measured: the networks' table of docs/benchmarks.md ("Current
+    results", which the README's results table quotes), one row a method."""
+    tour = compose(["experiment=quick"]).tour
+    docs = (CONF_DIR.parent / "docs" / "benchmarks.md").read_text()
+    rows = {"cuikm": "CUIKM", "uikm": "UIKM", "sikm_best": "SIKM, best variant"}
+    assert set(tour.hole_mm) <= set(rows) and set(tour.hole_mm) >= {"cuikm", "uikm"}
+    for method, name in rows.items():
+        if method not in tour.hole_mm:
+            continue
+        row = re.search(rf"^\| \**{re.escape(name)}\**[^|]*\| \**([\d.]+)\** \|[^|]*\|[^|]*\| \**([\d.]+) %\** \|",
+                        docs, re.M)
+        assert row, name
+        assert (tour.hole_mm[method], tour.collision_pct[method]) == (float(row[1]), float(row[2])), method
+    readme = (CONF_DIR.parent / "README.md").read_text()
+    assert f"mean hole-seeking error {tour.hole_mm.cuikm:g} mm, collision rate {tour.collision_pct.cuikm:g} %" in readme

@@ -1,6 +1,7 @@
 """Train and evaluate: the quick experiment end to end, metrics on hand-built cases, learning."""
 
 import json
+import logging
 import math
 
 import numpy as np
@@ -302,3 +303,23 @@ def test_evaluate_without_models_says_what_is_missing(tiny_study, make_cfg):
     with pytest.raises(InputError, match=r"sikm.pt: no such model checkpoint"):  # the tiny study has CUIKM only
         evaluate.run(make_cfg(tiny_study))
     assert not (tiny_study / "data" / "eval").exists()  # nothing half-written
+
+
+def test_a_training_prints_the_full_studys_figure_beside_its_own(tiny_study, make_cfg, caplog):
+    """The quick experiment's ``tour`` (tiny inherits it): a short training's figure is read for what it is."""
+    cfg = make_cfg(tiny_study, "method=cuikm", "train.steps=2", "train.eval_every=1", "runtime.log_model=false",
+                   "tour.hole_mm.cuikm=1.25", "tour.collision_pct.cuikm=0.07")
+    with caplog.at_level(logging.INFO, logger="pipeline.train"):
+        train.run(cfg)
+    lines = [r.getMessage() for r in caplog.records if "full study" in r.getMessage()]
+    assert lines == ["the full study's cuikm (the README's first command) reaches 1.25 mm on its five test groups, "
+                     "0.07 % collisions"]
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="pipeline.train"):  # a config without the node: nothing
+        train.run(make_cfg(tiny_study, "method=cuikm", "train.steps=2", "runtime.log_model=false", "~tour"))
+    assert not [r for r in caplog.records if "full study" in r.getMessage()]
+    for override, error in [("+tour.hole_m={cuikm: 1}", r"tour.hole_m: unknown setting; did you mean 'hole_mm'"),
+                            ("tour.hole_mm=3", r"tour.hole_mm = 3: expected a mapping"),
+                            ("tour.collision_pct.cuikm=abc", r"tour.collision_pct.cuikm = 'abc': expected a number")]:
+        with pytest.raises(ConfigError, match=error):  # before any work: a typo must not wait for the training
+            train.run(make_cfg(tiny_study, override))
