@@ -68,6 +68,7 @@ from pipeline.events.executed_files import draws_table, executed_round_table, lo
 from pipeline.events.interrupt import interrupted_round, standing
 from pipeline.events.rule import execute
 from pipeline.events.trajectory import action_rows, retimed
+from pipeline.events.zones import NO_ZONES, read_zones, zones_table
 from pipeline.plans.drpqual import write_quality_log
 from pipeline.plans.model import COLLAR
 from pipeline.plans.navigation import NavigationSettings, same_navigation
@@ -153,7 +154,7 @@ def replan_round(cfg, node=None):
 
 
 # what execute reads of the planned set: each must be the file schedule wrote (its MD5 in the JSON's manifest)
-READS = ("trajectory", "actions", "interlocks", "round", "moves", "problem")
+READS = ("trajectory", "actions", "interlocks", "zones", "round", "moves", "problem")
 MAX_JSON_MB = 64.0  # the planned round's JSON, read whole (as the checker's bound)
 
 
@@ -197,6 +198,8 @@ def verify_planned(planned, doc: dict, plan_path, recorded_with: dict) -> None:
         if said is None:
             if kind == "moves" and not path.exists():
                 continue  # no move book: every move is certified again
+            if kind == "zones" and not path.exists():
+                continue  # planned before zones files were written: no zone (docs/reference.md, section 9)
             if kind == "problem" and not path.exists():
                 raise InputError(f"{path}: not found, and {where} does not list it: a set planned before schedule "
                                  "wrote the round's problem; re-run schedule")
@@ -364,9 +367,15 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
     ids = plan.holes["hole_id"].astype(str).tolist()
     table = read_actions(planned["actions"])
     acts = actions_from_table(table, rig.names, ids, str(planned["actions"]))
-    edges = read_interlocks(planned["interlocks"], table.iloc[np.lexsort((table["action"].to_numpy(int),
-                            [rig.names.index(b) for b in table["boom"]]))].reset_index(drop=True),
-                            str(planned["actions"]))
+    boom_major = table.iloc[np.lexsort((table["action"].to_numpy(int), [rig.names.index(b) for b in table["boom"]]))
+                            ].reset_index(drop=True)  # numbered as the actions are
+    edges = read_interlocks(planned["interlocks"], boom_major, str(planned["actions"]))
+    zones = (read_zones(planned["zones"], boom_major, acts, str(planned["actions"])) if planned["zones"].is_file()
+             else NO_ZONES)
+    if len(zones) and inter.hole is not None:
+        raise ConfigError(f"execute.interrupt.hole = {inter.hole!r}: the round has zones ({planned['zones']}), and "
+                          "a round with zones is not handed on after an interruption yet (docs/round.md); run it "
+                          "without execute.interrupt")
     names = list(rig.booms[0].boom.joint_names)
     traj = _read_trajectory(planned["trajectory"], names)
     rows = action_rows(traj, acts, names, str(planned["trajectory"]))
@@ -394,7 +403,7 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
         mc = None
         if settings.monte_carlo:
             t0 = time.perf_counter()
-            ex_all = run(acts, edges, planned_s, d)
+            ex_all = run(acts, edges, planned_s, d, zones)
             timings["monte_carlo_s"] = time.perf_counter() - t0
             mc = summary(ex_all, nominal, d)
             out["monte_carlo"] = mc
@@ -417,7 +426,7 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
         interrupted: set[int] = set()
         r_acts, r_edges, r_rows = acts, edges, rows
         if inter.hole is None:
-            ex = execute(acts, edges, drill_s)
+            ex = execute(acts, edges, drill_s, zones)
         else:
             if inter.hole not in ids:
                 raise ConfigError(f"execute.interrupt.hole = {inter.hole!r}: no such hole in {plan_path}")
@@ -463,6 +472,9 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
         out.update({"draw": label, "makespan_s": float(ex.makespan[0]),
                     "makespan_over_nominal": float(ex.makespan[0] / nominal) if nominal > 0 else None,
                     "standing_s": {name: float(ex.standing[0, b]) for b, name in enumerate(r_acts.booms)},
+                    # of it, the time spent waiting for another boom to leave a zone; beside it, at park, done
+                    "standing_for_zones_s": {n: float(ex.standing_zone[0, b]) for b, n in enumerate(r_acts.booms)},
+                    "idle_after_s": {name: float(ex.idle_after[0, b]) for b, name in enumerate(r_acts.booms)},
                     "holes_drilled": int(sum(1 for k in np.flatnonzero(r_acts.is_drill) if int(k) not in skip)),
                     "holes_left": [ids[r_acts.hole[k]] for k in sorted(interrupted)],
                     "ran_long": long_holes(r_acts, planned_s, start, end, skip),
@@ -481,7 +493,8 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
         writers.update({"trajectory": lambda p: write_csv(realised_traj, p),
                         "round": lambda p: write_csv(spreadsheet_safe(r_table), p),
                         "actions": lambda p: write_csv(spreadsheet_safe(executed_acts), p),
-                        "interlocks": lambda p: write_csv(interlocks_table(r_acts, r_edges), p)})
+                        "interlocks": lambda p: write_csv(interlocks_table(r_acts, r_edges), p),
+                        "zones": lambda p: write_csv(spreadsheet_safe(zones_table(r_acts, zones)), p)})
         collars = plan.holes[COLLAR].to_numpy(float)
         if settings.figures and mc is not None:
             fig = makespans_figure(fig_span, fig_labels, nominal, f"rig {rig.name}: the round executed by events",
@@ -512,7 +525,7 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
             checks["realised"] = _check([str(staged["trajectory"]), *ov, "--realised", "--round",
                                          str(staged["round"]), "--summary", str(staged["json"]), "--actions",
                                          str(staged["actions"]), "--interlocks", str(staged["interlocks"]),
-                                         "--plan", plan_arg], "the realised set")
+                                         "--zones", str(staged["zones"]), "--plan", plan_arg], "the realised set")
             for k, c in checks.items():
                 timings[f"check_{k}_s"] = c.pop("seconds")
             _checks_ran(checks)

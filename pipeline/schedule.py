@@ -20,6 +20,7 @@ and its baselines, and writes beside the plan (or into ``out``, a folder or a ``
 - for every rig (``schedule.interlocks``; one boom has no interlock, the file holds its header), the round
   executed by events (docs/reference.md section 8,
   :mod:`pipeline.events.robust_round`): ``<stem>_actions.csv``, ``<stem>_interlocks.csv``,
+  ``<stem>_zones.csv`` (section 9; the planner chooses no zone yet, so it holds its header alone),
   ``<stem>_round_executed.png`` and ``<stem>_round_executed_replay.html``; the trajectory is then the
   round re-timed by its interlocks, and the JSON's ``execution`` holds the drawn rounds' summary.
 
@@ -204,6 +205,7 @@ def run(cfg: DictConfig) -> dict:
         if executed is not None:
             writers["actions"] = lambda p: write_csv(spreadsheet_safe(executed.actions), p)
             writers["interlocks"] = lambda p: write_csv(executed.interlocks, p)
+            writers["zones"] = lambda p: write_csv(spreadsheet_safe(executed.zones), p)
             if settings.figures:
                 from pipeline.events.robust_round import realised_makespans_figure
 
@@ -302,10 +304,10 @@ def run_benchmark(cfg: DictConfig, settings: ScheduleSettings) -> dict:
         mlrun.log_table(table, "round_benchmark.json")
         for _, r in table.iterrows():
             key = f"{r['rig']}.{r['face'].split(' (')[0].replace(' ', '')}"
-            mlrun.log_metrics({f"{key}.{k}": float(r[k]) for k in ("makespan_s", "lower_bound_s", "ratio", "naive_s",
-                                                                    "nearest_s", "planning_s", "plan_makespan_s",
-                                                                    "robust_price_pct", "exec_p95", "standing_p95_pct")
-                               if pd.notna(r[k])})
+            logged = ("makespan_s", "lower_bound_s", "ratio", "naive_s", "nearest_s", "planning_s", "plan_makespan_s",
+                      "robust_price_pct", "exec_p95", "standing_p95_pct", "order_p95_pct", "zone_p95_pct",
+                      "idle_after_p95_pct")
+            mlrun.log_metrics({f"{key}.{k}": float(r[k]) for k in logged if pd.notna(r[k])})
     log.info("round benchmark:\n%s", markdown(table))
     return {"rows": len(table)}
 

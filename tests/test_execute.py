@@ -192,7 +192,7 @@ def test_a_navigation_other_than_the_planned_one_is_refused_before_any_work(plan
 # execute runs only the files it planned, publishes only what was checked, refuses with a name
 
 
-PLANNED = ("small_trajectory.csv", "small_actions.csv", "small_interlocks.csv", "small_round.csv",
+PLANNED = ("small_trajectory.csv", "small_actions.csv", "small_interlocks.csv", "small_zones.csv", "small_round.csv",
            "small_round.json", "small_moves.npz", "small_problem.npz")
 
 
@@ -261,6 +261,8 @@ TAMPERED = {  # what is edited -> (edit of the copy, the file the refusal names)
         "t_end", df["t_end"] * 0.9)), "small_actions.csv"),
     "interlocks": (lambda d: _edit_csv(d / "small_interlocks.csv", lambda df: df.drop(df.index[:1], inplace=True)),
                    "small_interlocks.csv"),
+    "a zone added": (lambda d: (d / "small_zones.csv").write_text(
+        (d / "small_zones.csv").read_text() + "z,L,1,1\nz,R,1,1\n"), "small_zones.csv"),
     "trajectory joints": (lambda d: _edit_csv(d / "small_trajectory.csv", lambda df: df.__setitem__(
         "q1", df["q1"] + 0.01)), "small_trajectory.csv"),
     "round table": (lambda d: _edit_csv(d / "small_round.csv", lambda df: df.__setitem__(
@@ -524,3 +526,36 @@ def test_the_problem_schedule_wrote_is_the_instance_a_new_reach_solve_gives(plan
     np.testing.assert_allclose(loaded.move_s, solved.move_s, rtol=0, atol=1e-9)
     np.testing.assert_allclose(loaded.phases, solved.phases, rtol=0, atol=1e-12)
     assert loaded.reasons == solved.reasons and loaded.reach.any()
+
+
+@pytest.mark.slow
+def test_a_zone_is_followed_and_a_trajectory_that_does_not_follow_it_is_caught(planned, tmp_path):
+    """A zone put into the planned set, its MD5 in the manifest as a planner writes it: the two booms' moves
+    back to park, which run at once in the plan. The realised round follows the rule with the zone (the
+    later boom waits at its last hole; the executed set carries the zone) and the independent checker,
+    reading it, passes the realised set. The planned trajectory, though, still has both moves at once,
+    which the zone forbids: the checker of the planned draws finds that the rule with the model durations
+    does not give the planned file (a planted fault the stage itself does not look for, exit 1 there)."""
+    from pipeline import execute
+
+    d = tmp_path / "set"
+    ov = _copy_set(planned, d) + [f"execute.out={tmp_path / 'out'}", "execute.draw=nominal"]
+    acts = pd.read_csv(d / "small_actions.csv", keep_default_na=False)
+    last = acts.loc[acts.groupby("boom")["action"].idxmax()].set_index("boom")
+    assert last["t_start"].max() < last["t_end"].min(), "the plan's moves to park must overlap for this test"
+    zones = "zone,boom,first_action,last_action\n" + "".join(f"park,{b},{a},{a}\n" for b, a in last["action"].items())
+    (d / "small_zones.csv").write_text(zones)
+    _rewrite_manifest(d, "small_zones.csv")
+    out = execute.run_execute(compose(ov), ov)
+    assert out["checks"]["realised"]["exit"] == 0, out["checks"]
+    done = pd.read_csv(tmp_path / "out" / "small_executed_actions.csv", keep_default_na=False)
+    moves = done.loc[done.groupby("boom")["action"].idxmax()]
+    assert moves["t_start"].max() >= moves["t_end"].min() - 1e-9  # one after the other
+    # the model durations: the boom that would have moved at once waits at its last hole, for the zone
+    assert out["makespan_s"] > out["nominal_makespan_s"] + 1.0
+    assert max(out["standing_for_zones_s"].values()) == pytest.approx(out["makespan_s"] - out["nominal_makespan_s"])
+    assert (tmp_path / "out" / "small_executed_zones.csv").read_text() == zones
+    assert out["monte_carlo"]["deadlocks"] == 0
+    planned_check = out["checks"]["planned_draws"]
+    assert planned_check["exit"] == 1 and planned_check["verdict"]["execution"]["violating_draws"] == 0
+    assert planned_check["verdict"]["violations"] == 2  # the makespan and the move that starts later

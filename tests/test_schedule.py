@@ -55,6 +55,8 @@ def test_the_three_files_and_figures_are_written(small_round):
                    "_round_replay.html", "_actions.csv", "_interlocks.csv", "_round_executed.png",
                    "_round_executed_replay.html"):
         assert (tmp / f"small{suffix}").stat().st_size > 0, suffix
+    # the zones file, for every rig: its header alone, as the planner chooses no zone yet
+    assert (tmp / "small_zones.csv").read_text() == "zone,boom,first_action,last_action\n"
     on_disk = json.loads((tmp / "small_round.json").read_text())
     for key in ("makespan_s", "lower_bound_s", "naive_makespan_s", "nearest_makespan_s", "min_boom_clearance_m",
                 "booms", "moves"):
@@ -247,6 +249,7 @@ def test_a_one_boom_round_writes_its_actions_and_an_interlocks_file_without_rows
     acts = pd.read_csv(tmp / "one_boom_actions.csv", keep_default_na=False, na_values=[""])
     inter = pd.read_csv(tmp / "one_boom_interlocks.csv")
     assert list(inter.columns) == ["boom", "action", "after_boom", "after_action"] and len(inter) == 0
+    assert (tmp / "one_boom_zones.csv").read_text() == "zone,boom,first_action,last_action\n"
     assert set(acts["boom"]) == {"B"} and list(acts["action"]) == list(range(len(acts)))
     assert sorted(acts.loc[acts["kind"] == "drill", "hole_id"]) == sorted(holes["hole_id"].iloc[::8])
     assert acts["kind"].iloc[0] == acts["kind"].iloc[-1] == "move" and acts["t_start"].iloc[0] == 0.0
@@ -289,6 +292,8 @@ def test_round_benchmark_writes_its_table_and_each_cells_trajectory(face_plan, m
     # cell's set written as the stage writes it, so that the independent checker executes it
     assert row["plan_makespan_s"] == pytest.approx(row["makespan_s"]) and row["robust_price_pct"] == 0
     assert row["interlocks"] == 0 and row["deadlocks"] == 0 and row["standing_p95_pct"] == 0
+    assert row["order_p95_pct"] == row["zone_p95_pct"] == row["idle_after_p95_pct"] == 0  # one boom: never idle
+    assert (tmp / "data" / "benchmark" / "rounds" / "gen20_single_zones.csv").read_text().startswith("zone,boom")
     assert 1.0 < row["exec_p95"] < 1.5  # drilling drawn 0.7-1.5x: later than planned, never by more than 1.5x
     stage = ["experiment=tiny", f"paths.data={tmp}/data", *FAST, "rig=single"]
     stage.remove("rig=twin")

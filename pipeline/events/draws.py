@@ -10,9 +10,11 @@ The draws (``conf/draws/default.yaml``), as factors of each hole's section-7 dri
 
 ``factors`` (hole id -> factor) fixes named holes' factors in every draw (a hole known to be hard).
 All are executed at once (:func:`pipeline.events.rule.execute`, vectorised over draws). The
-summary gives the makespan's ratio to the nominal one (p50, p95, max) and the time the booms stood at
-interlocks as a share of the draw's makespan (p95, max), and the deadlocks (the graph is the same for
-every draw, so a deadlock is all or nothing).
+summary gives the makespan's ratio to the nominal one (p50, p95, max), the time the booms stood before
+their actions as a share of the draw's makespan (p50, p95, max) and split by cause (p50, p95: for an
+order, an interlock; for a zone another boom was inside), the time they stood at park with nothing left
+to do after their last action (p50, p95), and the draws that deadlock (without zones the graph is the
+same for every draw, so a deadlock is all or nothing).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from pipeline.core.errors import ConfigError
 from pipeline.core.settings import parse, rule
 from pipeline.events.actions import Actions
 from pipeline.events.rule import Execution, execute
+from pipeline.events.zones import Zones
 
 # Bounds (conf/draws/default.yaml): a draw is (holes x actions) floats, each checked for d_boom by the
 # independent checker too, and a factor is a drilling duration over its model time (high=1e300 would give
@@ -105,15 +108,21 @@ def draws(acts: Actions, settings: DrawSettings) -> Draws:
     return Draws(out, labels)
 
 
-def run(acts: Actions, interlocks: np.ndarray, drill_s: np.ndarray, d: Draws) -> Execution:
-    """Every draw executed: drilling durations ``factors * drill_s``."""
-    return execute(acts, interlocks, d.factors * np.asarray(drill_s, float)[None, :])
+def run(acts: Actions, interlocks: np.ndarray, drill_s: np.ndarray, d: Draws, zones: Zones | None = None
+        ) -> Execution:
+    """Every draw executed: drilling durations ``factors * drill_s``, with the interlocks and ``zones``."""
+    return execute(acts, interlocks, d.factors * np.asarray(drill_s, float)[None, :], zones)
 
 
 def summary(ex: Execution, nominal_makespan_s: float, d: Draws) -> dict:
     """Makespan ratios to the nominal round and standing shares, over the random draws and over all."""
-    deadlock = ex.deadlock is not None
-    share = ex.standing.sum(1) / np.where(ex.makespan > 0, ex.makespan, 1.0)
+    deadlock = bool(ex.deadlocked.any())
+    span = np.where(ex.makespan > 0, ex.makespan, 1.0)
+    share = ex.standing.sum(1) / span
+    # standing by cause, shares of the makespan summed over booms: for an order (interlock), for a zone
+    # another boom was inside; and beside it the time at park after the boom's last action
+    causes = {"order": ex.standing_order.sum(1) / span, "zone": ex.standing_zone.sum(1) / span,
+              "idle_after": ex.idle_after.sum(1) / span}
     ratio = ex.makespan / nominal_makespan_s if nominal_makespan_s > 0 else np.ones_like(ex.makespan)
     rand = np.array([lab == "random" for lab in d.labels])
 
@@ -123,7 +132,9 @@ def summary(ex: Execution, nominal_makespan_s: float, d: Draws) -> dict:
         r, s = ratio[mask], share[mask]
         return {"draws": int(mask.sum()), "makespan_ratio_p50": float(np.percentile(r, 50)),
                 "makespan_ratio_p95": float(np.percentile(r, 95)), "makespan_ratio_max": float(r.max()),
-                "standing_share_p95": float(np.percentile(s, 95)), "standing_share_max": float(s.max())}
+                "standing_share_p50": float(np.percentile(s, 50)),
+                "standing_share_p95": float(np.percentile(s, 95)), "standing_share_max": float(s.max()),
+                **{f"{c}_share_p{q}": float(np.percentile(v[mask], q)) for c, v in causes.items() for q in (50, 95)}}
 
-    return {"nominal_makespan_s": nominal_makespan_s, "draws": len(d.labels), "deadlocks": len(d.labels) if deadlock
-            else 0, "random": stats(rand), "all": stats(np.ones_like(rand))}
+    return {"nominal_makespan_s": nominal_makespan_s, "draws": len(d.labels), "deadlocks": int(ex.deadlocked.sum()),
+            "random": stats(rand), "all": stats(np.ones_like(rand))}

@@ -58,6 +58,7 @@ from pipeline.events.actions import Actions, actions_of
 from pipeline.events.conflicts import Conflicts, conflicts
 from pipeline.events.graph import find_cycle, reduce_edges
 from pipeline.events.rule import Execution, execute, realised
+from pipeline.events.zones import NO_ZONES, Zones
 from pipeline.round.problem import Instance
 from pipeline.round.timeline import Timeline, scan
 
@@ -74,6 +75,7 @@ class RobustRound:
     conflicts: Conflicts
     stats: dict = field(default_factory=dict)
     problem: str | None = None
+    zones: Zones = NO_ZONES  # no zone is chosen yet: every conflicting pair is ordered by an interlock
 
 
 def _rank(acts: Actions) -> np.ndarray:

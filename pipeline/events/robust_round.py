@@ -5,7 +5,7 @@ Monte Carlo of drilling durations, and one realised round to look at.
 round is planned (``finish``): it builds the interlocks (:func:`~pipeline.events.interlocks.robust_round`),
 hands back the re-timed nominal timeline (the one the trajectory file is written from, which the
 execution rule reproduces exactly with the reference's durations) and keeps what the stage writes: the
-actions and interlocks tables, the draws' summary, and the slowest random draw as a realised round.
+actions, interlocks and zones tables, the draws' summary, and the slowest random draw as a realised round.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from pipeline.events.actions import actions_table, interlocks_table
 from pipeline.events.draws import Draws, DrawSettings, draws, run, summary
 from pipeline.events.interlocks import RobustRound, robust_round
 from pipeline.events.rule import Execution, realised
+from pipeline.events.zones import zones_table
 from pipeline.round.problem import Instance
 from pipeline.round.timeline import Timeline
 
@@ -31,6 +32,7 @@ class Executed:
     robust: RobustRound
     actions: pd.DataFrame
     interlocks: pd.DataFrame
+    zones: pd.DataFrame
     draws: Draws
     execution: Execution
     summary: dict
@@ -53,13 +55,14 @@ def robust_finish(settings: DrawSettings, say=None):
         say(f"interlocks: {rr.stats['interlocks']} ({rr.stats['conflicting_pairs']} conflicting pairs of actions, "
             f"{rr.stats['overlapping_in_plan']} serialised); nominal makespan {nominal.makespan:.1f} s")
         d = draws(rr.actions, settings)
-        ex = run(rr.actions, rr.interlocks, inst.drill_s, d)
+        ex = run(rr.actions, rr.interlocks, inst.drill_s, d, rr.zones)
         s = summary(ex, nominal.makespan, d)
         s["interlocks"] = {k: v for k, v in rr.stats.items() if not k.endswith("_s")}
         s["robust"] = rr.problem is None
         s["problem"] = rr.problem
         s["plan_makespan_s"] = tl.makespan
-        out = Executed(rr, actions_table(rr.actions), interlocks_table(rr.actions, rr.interlocks), d, ex, s)
+        out = Executed(rr, actions_table(rr.actions), interlocks_table(rr.actions, rr.interlocks),
+                       zones_table(rr.actions, rr.zones), d, ex, s)
         out.extra["timings"] = {k: v for k, v in rr.stats.items() if k.endswith("_s")}
         rand = np.flatnonzero([lab == "random" for lab in d.labels])
         if ex.deadlock is None and len(rand):

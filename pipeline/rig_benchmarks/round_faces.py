@@ -9,7 +9,7 @@ Every cell uses :func:`pipeline.round.from_plan.schedule_round`, as the stage do
 (:func:`pipeline.events.robust_round.robust_finish`): the clock-timed plan's makespan, the nominal one with
 interlocks (the price of robustness), the interlocks, and the draws' makespan ratios and standing shares.
 With a ``trajectories`` folder every cell's set is written there as the stage writes a round (plan, round
-table, JSON, trajectory, actions, interlocks), so the independent checker can execute each one.
+table, JSON, trajectory, actions, interlocks, zones), so the independent checker can execute each one.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ def round_benchmark(faces: Sequence, rigs: Sequence[BenchRig], hybrid: HybridSet
                     box: dict | None = None, draw_settings: DrawSettings | None = None) -> pd.DataFrame:
     """One row per (face, rig); ``faces``: "demo" or hole counts; ``trajectories``: a folder to write
     each cell's set into (``<face>_<rig>.csv``, the plan, and its ``_round.csv``, ``_round.json``,
-    ``_trajectory.csv``, ``_actions.csv``, ``_interlocks.csv``); ``box``: the reach table's joint box
+    ``_trajectory.csv``, ``_actions.csv``, ``_interlocks.csv``, ``_zones.csv``); ``box``: the reach table's joint box
     (``holes.sup.box``, as the stage passes it: None is the full ranges); ``draw_settings``: the round made
     robust and its draws (module docstring), None for the clock-timed round alone."""
     rows = []
@@ -99,7 +99,13 @@ def _write_set(plan_file: Path, plan, res) -> None:
         summary["execution"] = res.finished.summary
         writers["actions"] = lambda p: write_csv(res.finished.actions, p)
         writers["interlocks"] = lambda p: write_csv(res.finished.interlocks, p)
+        writers["zones"] = lambda p: write_csv(res.finished.zones, p)
     write_round_set(round_paths(plan_file, None), summary, writers)
+
+
+# the standing split by cause (pipeline.events.draws.summary): for an order, for a zone; and the time at
+# park after the last action, nothing left to do
+STANDING_CAUSES = ("order", "zone", "idle_after")
 
 
 def _executed(ex) -> dict:
@@ -107,23 +113,26 @@ def _executed(ex) -> dict:
     nan = float("nan")
     if ex is None:
         return {"plan_makespan_s": nan, "robust_price_pct": nan, "interlocks": nan, "robust": nan,
-                "deadlocks": nan, "exec_p50": nan, "exec_p95": nan, "standing_p95_pct": nan}
+                "deadlocks": nan, "exec_p50": nan, "exec_p95": nan, "standing_p95_pct": nan,
+                **{f"{c}_p{q}_pct": nan for c in STANDING_CAUSES for q in (50, 95)}}
     s, r = ex.summary, ex.summary["random"] or {}
     return {"plan_makespan_s": s["plan_makespan_s"],
             "robust_price_pct": 100.0 * (s["nominal_makespan_s"] / s["plan_makespan_s"] - 1.0),
             "interlocks": s["interlocks"]["interlocks"], "robust": bool(s["robust"]), "deadlocks": s["deadlocks"],
             "exec_p50": r.get("makespan_ratio_p50", nan), "exec_p95": r.get("makespan_ratio_p95", nan),
-            "standing_p95_pct": 100.0 * r.get("standing_share_p95", nan)}
+            "standing_p95_pct": 100.0 * r.get("standing_share_p95", nan),
+            **{f"{c}_p{q}_pct": 100.0 * r.get(f"{c}_share_p{q}", nan) for c in STANDING_CAUSES for q in (50, 95)}}
 
 
 def markdown(table: pd.DataFrame) -> str:
     cols = ["face", "rig", "drilled", "makespan_s", "lower_bound_s", "ratio", "naive_s", "nearest_s", "moving_s",
             "waiting_s", "planning_s", "min_boom_clearance_m", "waits", "sequential", "detours", "moves_failed",
-            "plan_makespan_s", "robust_price_pct", "interlocks", "exec_p95", "standing_p95_pct"]
+            "plan_makespan_s", "robust_price_pct", "interlocks", "exec_p95", "standing_p95_pct",
+            *(f"{c}_p{q}_pct" for c in STANDING_CAUSES for q in (50, 95))]
     out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for _, r in table.iterrows():
         cells = [f"{r[c]:.3f}" if c in ("ratio", "min_boom_clearance_m", "exec_p95") else
-                 f"{r[c]:.2f}" if c in ("robust_price_pct", "standing_p95_pct") else
+                 f"{r[c]:.2f}" if c in ("robust_price_pct", "standing_p95_pct") or c.endswith("_pct") else
                  f"{r[c]:.0f}" if isinstance(r[c], float) and c != "planning_s" else
                  f"{r[c]:.1f}" if c == "planning_s" else str(r[c]) for c in cols]
         out.append("| " + " | ".join(cells) + " |")

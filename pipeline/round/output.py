@@ -34,12 +34,14 @@ SUFFIXES = {"round": "_round.csv", "trajectory": "_trajectory.csv", "json": "_ro
             "face": "_round_face.png", "gantt": "_round_gantt.png", "replay": "_round_replay.html",
             # executed by events (docs/reference.md, section 8): the actions and interlocks files, realised makespans
             "actions": "_actions.csv", "interlocks": "_interlocks.csv", "executed": "_round_executed.png",
+            "zones": "_zones.csv",  # docs/reference.md, section 9: its header alone when the round has no zone
             "executed_replay": "_round_executed_replay.html",
             "moves": "_moves.npz",  # the planner's move book, re-used by a round handed on (round/move_file.py)
             "problem": "_problem.npz"}  # what the round was planned on, loaded by execute (round/problem_file.py)
 # the executed round (pipeline.execute): realised files, the draws, and the figures
 EXECUTED = {"round": "_executed_round.csv", "trajectory": "_executed_trajectory.csv", "json": "_executed.json",
             "actions": "_executed_actions.csv", "interlocks": "_executed_interlocks.csv",
+            "zones": "_executed_zones.csv",
             "draws": "_draws.csv", "makespans": "_executed_makespans.png", "replay": "_executed_replay.html",
             # an IREDES plan's holes as the execute stage read them, as CSV: the independent checker's plan
             "plan": "_executed_plan.csv",
