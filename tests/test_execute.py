@@ -559,3 +559,24 @@ def test_a_zone_is_followed_and_a_trajectory_that_does_not_follow_it_is_caught(p
     planned_check = out["checks"]["planned_draws"]
     assert planned_check["exit"] == 1 and planned_check["verdict"]["execution"]["violating_draws"] == 0
     assert planned_check["verdict"]["violations"] == 2  # the makespan and the move that starts later
+
+
+@pytest.mark.slow
+def test_a_bad_zones_file_and_an_interrupted_round_with_zones_exit_2_naming_them(planned, tmp_path):
+    """A zones file the manifest vouches for but that names an action its boom does not have: refused,
+    exit 2, the file and the row named, nothing written. A good zone with execute.interrupt: refused
+    (a round with zones is not handed on yet), exit 2, nothing written."""
+    d = tmp_path / "set"
+    ov = _copy_set(planned, d) + [f"execute.out={tmp_path / 'out'}", "execute.monte_carlo=false"]
+    (d / "small_zones.csv").write_text("zone,boom,first_action,last_action\nz,L,1,1\nz,R,99,99\n")
+    _rewrite_manifest(d, "small_zones.csv")
+    code, err = _stage(ov)
+    assert code == 2 and "small_zones.csv: row 3: first_action = 99: boom 'R' has no action 99" in err, err
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())  # nothing written
+    (d / "small_zones.csv").write_text("zone,boom,first_action,last_action\nz,L,1,1\nz,R,1,1\n")
+    _rewrite_manifest(d, "small_zones.csv")
+    hole = first_drill(d)["hole_id"]
+    code, err = _stage([*ov, f"execute.interrupt.hole={hole}", "execute.interrupt.at_s=5"])
+    assert code == 2 and "a round with zones is not handed on after an interruption yet" in err, err
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+    assert "Traceback" not in err
