@@ -69,6 +69,7 @@ class Cells:
         self.C = np.concatenate([np.zeros((1, step.shape[1])), np.cumsum(step, 0)])  # cumulative, per body
         self.S = np.concatenate([[0.0], np.cumsum(step.max(1))])  # a scalar measure of progress
         self.radius = np.array([bd.radius for bd in m.bodies])
+        self.episodes = len(windows)  # episode i is cell i; the cells after them are children made by splits
         self.episode = np.arange(len(windows))
         self.t0, self.t1 = windows[:, 0].copy(), windows[:, 1].copy()
         self.children = np.full((len(windows), 2), -1, np.int64)
@@ -139,7 +140,11 @@ class Floors:
 
 
 def floors(A: Cells, B: Cells, d_boom: float, max_levels: int = 60) -> Floors:
-    na, nb = len(A.episode), len(B.episode)
+    # from the episodes' own cells, not from every cell: a boom's cells are shared by its pairs with the other
+    # booms, and those an earlier pair split are children, reused when a split reaches them. Starting from all
+    # of them (a third pair of a three-boom rig: millions of cell pairs) hit CAP at once and left every floor
+    # unrefined, tens of metres below the truth.
+    na, nb = A.episodes, B.episodes
     floor = np.full((na, nb), np.inf)
     below = np.zeros((na, nb), bool)
     least, least_at = np.full((na, nb), np.inf), np.full((na, nb, 2), np.nan)
