@@ -514,3 +514,26 @@ def test_one_destination_has_one_publish_lock_however_it_is_spelled(tmp_path, mo
     (lock,) = spellings
     assert lock != publish_lock(other, "cuikm") and lock != publish_lock(models, "uikm")
     assert not lock.resolve().is_relative_to(models.resolve())
+
+
+@pytest.mark.parametrize("enabled", [True, False], ids=["tracking", "no-tracking"])
+def test_a_signal_that_comes_back_wrapped_still_ends_the_run_killed(tmp_path, enabled):
+    """A signal that lands inside a native library's callback comes back wrapped: numba, loading a kernel
+    from its cache, re-raises the handler's exception as ``SystemError``. The stage still exits 128 +
+    signum and its run ends KILLED, not FAILED (once seen in CI: SIGINT during a schedule stage's first
+    compiled call)."""
+    node = {"enabled": enabled, "uri": f"sqlite:///{tmp_path}/mlflow.db", "experiment": "boom-ik",
+            "artifact_root": str(tmp_path / "art")}
+    settings = TrackingSettings.from_config(node)
+    with pytest.raises(SystemExit) as ended:
+        with stage_run(settings, "wrapped", {"stage": "test"}):
+            try:
+                os.kill(os.getpid(), signal.SIGINT)  # the handler raises Terminated here
+                time.sleep(1.0)
+            except KeyboardInterrupt as exc:
+                raise SystemError("returned a result with an exception set") from exc  # as numba does
+    assert ended.value.code == 128 + signal.SIGINT
+    if enabled:
+        (run,) = MlflowClient(settings.uri).search_runs(
+            [MlflowClient(settings.uri).get_experiment_by_name("boom-ik").experiment_id])
+        assert run.info.status == "KILLED" and run.data.tags["run.end_reason"].startswith("received SIGINT")

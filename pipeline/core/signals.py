@@ -35,6 +35,12 @@ def _handler(signum, _frame):
     raise Terminated(signum)
 
 
+def pending() -> int | None:
+    """The handled signal that arrived, if any: its exception may have come back wrapped by a native
+    library's callback (numba re-raises it as ``SystemError``), so it cannot be told from the type."""
+    return _pending
+
+
 def raise_if_terminated() -> None:
     """Raise :class:`Terminated` if a handled signal arrived (and its first exception was swallowed)."""
     if _pending is not None:

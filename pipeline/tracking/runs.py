@@ -23,6 +23,7 @@ import json
 import logging
 import math
 import os
+import signal
 import socket
 import time
 import urllib.error
@@ -36,7 +37,7 @@ from pipeline.core.config import main_root
 from pipeline.core.errors import ConfigError, JobFailed
 from pipeline.core.exit_codes import for_signal
 from pipeline.core.io import file_md5, process_alive, require_writable
-from pipeline.core.signals import Terminated, raise_if_terminated, terminate_as_interrupt
+from pipeline.core.signals import Terminated, pending, raise_if_terminated, terminate_as_interrupt
 
 log = logging.getLogger(__name__)
 
@@ -458,6 +459,10 @@ def stage_run(settings: TrackingSettings, run_name: str, tags: Mapping[str, str]
                 raise_if_terminated()
             except Terminated as exc:
                 raise SystemExit(for_signal(exc.signum)) from exc
+            except Exception as exc:
+                if pending() is None:
+                    raise
+                raise SystemExit(for_signal(pending())) from exc  # the signal's exception, wrapped
             return
         _BUSY.update(uri=settings.uri, timeout_s=settings.busy_timeout_s)
         try:  # a signal while waiting on the store: no run exists yet, so only the exit status to set
@@ -480,6 +485,10 @@ def stage_run(settings: TrackingSettings, run_name: str, tags: Mapping[str, str]
                 raise SystemExit(for_signal(exc.signum)) from exc
             raise
         except BaseException as exc:
+            signum = pending()
+            if signum is not None:  # the signal's exception, wrapped on its way out (numba: SystemError)
+                _end(run_id, "KILLED", f"received {signal.Signals(signum).name} ({type(exc).__name__} on the way out)")
+                raise SystemExit(for_signal(signum)) from exc
             _end(run_id, "FAILED", f"{type(exc).__name__}: {exc}"[:5000])
             raise
         else:
