@@ -114,6 +114,11 @@ def run(acts: Actions, interlocks: np.ndarray, drill_s: np.ndarray, d: Draws, zo
     return execute(acts, interlocks, d.factors * np.asarray(drill_s, float)[None, :], zones)
 
 
+# the standing split by cause, keys ``<cause>_share_p50`` / ``_p95`` of the summary: waiting for an order (an
+# interlock), for a zone another boom was inside; and beside the standing, the time at park after the last action
+STANDING_CAUSES = ("order", "zone", "idle_after")
+
+
 def summary(ex: Execution, nominal_makespan_s: float, d: Draws) -> dict:
     """Makespan ratios to the nominal round and standing shares, over the random draws and over all."""
     deadlock = bool(ex.deadlocked.any())
@@ -121,8 +126,8 @@ def summary(ex: Execution, nominal_makespan_s: float, d: Draws) -> dict:
     share = ex.standing.sum(1) / span
     # standing by cause, shares of the makespan summed over booms: for an order (interlock), for a zone
     # another boom was inside; and beside it the time at park after the boom's last action
-    causes = {"order": ex.standing_order.sum(1) / span, "zone": ex.standing_zone.sum(1) / span,
-              "idle_after": ex.idle_after.sum(1) / span}
+    causes = dict(zip(STANDING_CAUSES, (ex.standing_order.sum(1) / span, ex.standing_zone.sum(1) / span,
+                                        ex.idle_after.sum(1) / span), strict=True))
     ratio = ex.makespan / nominal_makespan_s if nominal_makespan_s > 0 else np.ones_like(ex.makespan)
     rand = np.array([lab == "random" for lab in d.labels])
 

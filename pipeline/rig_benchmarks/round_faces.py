@@ -22,7 +22,7 @@ from pathlib import Path
 import pandas as pd
 
 from pipeline.core.io import write_csv
-from pipeline.events.draws import DrawSettings
+from pipeline.events.draws import STANDING_CAUSES, DrawSettings
 from pipeline.events.robust_round import robust_finish
 from pipeline.geometry.collision import SafetyModel
 from pipeline.geometry.rig import Rig
@@ -101,11 +101,6 @@ def _write_set(plan_file: Path, plan, res) -> None:
         writers["interlocks"] = lambda p: write_csv(res.finished.interlocks, p)
         writers["zones"] = lambda p: write_csv(res.finished.zones, p)
     write_round_set(round_paths(plan_file, None), summary, writers)
-
-
-# the standing split by cause (pipeline.events.draws.summary): for an order, for a zone; and the time at
-# park after the last action, nothing left to do
-STANDING_CAUSES = ("order", "zone", "idle_after")
 
 
 def _executed(ex) -> dict:
