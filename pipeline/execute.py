@@ -68,7 +68,7 @@ from pipeline.events.executed_files import draws_table, executed_round_table, lo
 from pipeline.events.interrupt import interrupted_round, standing
 from pipeline.events.rule import execute
 from pipeline.events.trajectory import action_rows, retimed
-from pipeline.events.zones import NO_ZONES, read_zones, zones_table
+from pipeline.events.zones import NO_ZONES, entry_orders, read_zones, zones_table
 from pipeline.plans.drpqual import write_quality_log
 from pipeline.plans.model import COLLAR
 from pipeline.plans.navigation import NavigationSettings, same_navigation
@@ -372,10 +372,11 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
     edges = read_interlocks(planned["interlocks"], boom_major, str(planned["actions"]))
     zones = (read_zones(planned["zones"], boom_major, acts, str(planned["actions"])) if planned["zones"].is_file()
              else NO_ZONES)
-    if len(zones) and inter.hole is not None:
-        raise ConfigError(f"execute.interrupt.hole = {inter.hole!r}: the round has zones ({planned['zones']}), and "
-                          "a round with zones is not handed on after an interruption yet (docs/round.md); run it "
-                          "without execute.interrupt")
+    zones_fixed = 0
+    if len(zones) and inter.hole is not None:  # handed on with each zone's planned entry order as interlocks
+        fixed = entry_orders(acts, zones)
+        edges, zones, zones_fixed = np.unique(np.concatenate([edges, fixed]), axis=0), NO_ZONES, len(fixed)
+        log.info("the round's zones are handed on as %d interlocks, each zone's entry order as planned", zones_fixed)
     names = list(rig.booms[0].boom.joint_names)
     traj = _read_trajectory(planned["trajectory"], names)
     rows = action_rows(traj, acts, names, str(planned["trajectory"]))
@@ -394,7 +395,7 @@ def run_execute(cfg: DictConfig, overrides: list[str] | None = None) -> dict:
         out: dict = {"plan": str(plan_path), "plan_md5": doc["plan_md5"], "planned_with": doc["planned_with"],
                      "rig": rig.name, "realised": True, "d_boom_m": rig.d_boom,
                      "planned": {p.name: file_md5(p) for p in planned.all().values() if p.is_file()},
-                     "nominal_makespan_s": nominal}
+                     "nominal_makespan_s": nominal, "zones_fixed_for_hand_on": zones_fixed}
         if plan_path.suffix.lower() == ".xml":  # the checker reads CSV plans: the holes as read, beside the set
             holes = _plan_holes(plan)
             writers["plan"] = lambda p: write_csv(holes, p)

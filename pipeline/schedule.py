@@ -54,6 +54,7 @@ from pipeline.core.settings import SEED_MAX, RuntimeSettings, coerce, parse, rul
 from pipeline.core.stage import run_stage, stage_main
 from pipeline.events.draws import parse_draws
 from pipeline.events.robust_round import robust_finish
+from pipeline.events.zone_choice import ZoneSettings
 from pipeline.motion.timing import rig_motions
 from pipeline.plans.model import COLLAR
 from pipeline.plans.navigation import NavigationSettings, navigation_metrics, navigation_params
@@ -129,6 +130,7 @@ def run(cfg: DictConfig) -> dict:
         return run_benchmark(cfg, settings)
     round_settings = parse_round(as_dict(cfg.round), "round")
     draw_settings = parse_draws(as_dict(cfg.draws), "draws")
+    zone_settings = parse(ZoneSettings, cfg.zones, "zones")
     hybrid = parse(HybridSettings, cfg.solver, "solver")
     tracking = TrackingSettings.from_config(cfg.tracking)
     runtime = RuntimeSettings.from_config(cfg)
@@ -154,7 +156,7 @@ def run(cfg: DictConfig) -> dict:
     with stage_run(tracking, f"schedule-{plan_path.stem}-{rig.name}",
                    {"stage": "schedule", "plan": str(plan_path), "rig": rig.name}) as mlrun:
         mlrun.log_params({"plan": str(plan_path), "rig": rig.name, "schedule": asdict(settings),
-                          "round": as_dict(cfg.round), "draws": as_dict(cfg.draws),
+                          "round": as_dict(cfg.round), "draws": as_dict(cfg.draws), "zones": as_dict(cfg.zones),
                           "motion": as_dict(cfg.motion), "solver": as_dict(cfg.solver), **navigation_params(plan)})
         mlrun.log_dataset(plan.holes, plan_path, "drill plan")
 
@@ -165,7 +167,7 @@ def run(cfg: DictConfig) -> dict:
                                           "hybrid")
             say(f"reach table: {len(plan)} holes x {len(rig)} booms")
             postures = round_postures(plan, rig, solvers, reach, motions, round_settings)
-            finish = robust_finish(draw_settings, say) if settings.interlocks else None
+            finish = robust_finish(draw_settings, say, zone_settings) if settings.interlocks else None
             res = schedule_round(rig, plan, reach, motions, round_settings, settings.baselines,
                                  settings.check_moves, say, finish, postures)
         finally:
@@ -284,6 +286,7 @@ def run_benchmark(cfg: DictConfig, settings: ScheduleSettings) -> dict:
     rigs = benchmark_rigs(cfg, settings.bench_rigs)  # every rig, boom model and motion checked before any work
     round_settings = parse_round(as_dict(cfg.round), "round")
     draw_settings = parse_draws(as_dict(cfg.draws), "draws") if settings.interlocks else None
+    zone_settings = parse(ZoneSettings, cfg.zones, "zones")
     hybrid = parse(HybridSettings, cfg.solver, "solver")
     tracking = TrackingSettings.from_config(cfg.tracking)
     folder = require_writable(project_path(cfg.paths.data) / "benchmark", "paths.data/benchmark")
@@ -295,10 +298,10 @@ def run_benchmark(cfg: DictConfig, settings: ScheduleSettings) -> dict:
 
     with stage_run(tracking, "schedule-benchmark", {"stage": "schedule", "mode": "benchmark"}) as mlrun:
         mlrun.log_params({"schedule": asdict(settings), "round": as_dict(cfg.round), "solver": as_dict(cfg.solver),
-                          "draws": as_dict(cfg.draws)})
+                          "draws": as_dict(cfg.draws), "zones": as_dict(cfg.zones)})
         table = round_benchmark(settings.bench_faces, rigs, hybrid, round_settings, first_start, settings.bench_seed,
                                 lambda m: log.info("%s", m), folder / "rounds", None if box is None else as_dict(box),
-                                draw_settings)
+                                draw_settings, zone_settings)
         write_csv(table, folder / "round_benchmark.csv")
         write_text(markdown(table), folder / "round_benchmark.md")
         mlrun.log_table(table, "round_benchmark.json")

@@ -562,10 +562,12 @@ def test_a_zone_is_followed_and_a_trajectory_that_does_not_follow_it_is_caught(p
 
 
 @pytest.mark.slow
-def test_a_bad_zones_file_and_an_interrupted_round_with_zones_exit_2_naming_them(planned, tmp_path):
+def test_a_bad_zones_file_exits_2_naming_it_and_a_round_with_zones_is_handed_on_with_its_entry_orders(planned,
+                                                                                                         tmp_path):
     """A zones file the manifest vouches for but that names an action its boom does not have: refused,
-    exit 2, the file and the row named, nothing written. A good zone with execute.interrupt: refused
-    (a round with zones is not handed on yet), exit 2, nothing written."""
+    exit 2, the file and the row named, nothing written. A good zone with execute.interrupt: the round is
+    handed on with the zone's planned entry order as an interlock (pipeline.events.zones.entry_orders),
+    and the independent checker passes the realised set."""
     d = tmp_path / "set"
     ov = _copy_set(planned, d) + [f"execute.out={tmp_path / 'out'}", "execute.monte_carlo=false"]
     (d / "small_zones.csv").write_text("zone,boom,first_action,last_action\nz,L,1,1\nz,R,99,99\n")
@@ -573,10 +575,14 @@ def test_a_bad_zones_file_and_an_interrupted_round_with_zones_exit_2_naming_them
     code, err = _stage(ov)
     assert code == 2 and "small_zones.csv: row 3: first_action = 99: boom 'R' has no action 99" in err, err
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())  # nothing written
-    (d / "small_zones.csv").write_text("zone,boom,first_action,last_action\nz,L,1,1\nz,R,1,1\n")
+    acts = pd.read_csv(d / "small_actions.csv", keep_default_na=False)
+    last = acts.loc[acts.groupby("boom")["action"].idxmax()].set_index("boom")
+    (d / "small_zones.csv").write_text("zone,boom,first_action,last_action\n"
+                                       + "".join(f"park,{b},{a},{a}\n" for b, a in last["action"].items()))
     _rewrite_manifest(d, "small_zones.csv")
     hole = first_drill(d)["hole_id"]
     code, err = _stage([*ov, f"execute.interrupt.hole={hole}", "execute.interrupt.at_s=5"])
-    assert code == 2 and "a round with zones is not handed on after an interruption yet" in err, err
-    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+    assert code == 0, err
+    out = json.loads(next((tmp_path / "out").glob("*_executed.json")).read_text())
+    assert out["zones_fixed_for_hand_on"] == 1 and out["checks"]["realised"]["exit"] == 0, out["checks"]
     assert "Traceback" not in err

@@ -270,7 +270,8 @@ def test_bad_input_is_named(rig, limits, jumbo8):
 
 def test_trio_middle_boom_is_checked_against_both_neighbours(safety, limits, jumbo8):
     """On the trio (8 m drift), M lifting its boom is clear of L and R by the oracle, both standing at
-    park; M swinging 45 deg towards L ends inside L's standing place and is refused, naming L."""
+    park; M (mounted 0.8 m above them) swinging 45 deg towards L and lowering its boom 20 deg ends inside L's
+    standing place and is refused, naming L."""
     from pipeline.geometry.tunnel import Horseshoe
 
     trio = load_rig("trio", Horseshoe.from_config(load_group_file("tunnel", "horseshoe_wide")), safety.distances,
@@ -288,7 +289,7 @@ def test_trio_middle_boom_is_checked_against_both_neighbours(safety, limits, jum
     assert min(gaps) >= 0
     assert move.clearance.floor - 1e-12 <= min(gaps) <= move.clearances["boom"] + FINE  # as in _assert_clear
     swing = park.clone()
-    swing[0] = math.radians(45)
+    swing[0], swing[1] = math.radians(45), math.radians(-20)
     assert float(trio.boom_clearance(m, swing, trio.index("L"), trio.booms[0].park)) < 0  # the premise
     move = plan_move(trio, "M", park, swing, limits, planner=PLANNER)
     assert move.kind == "failed" and "straight: boom L" in move.reason and "refused: the end qb" in move.reason

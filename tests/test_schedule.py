@@ -55,7 +55,7 @@ def test_the_three_files_and_figures_are_written(small_round):
                    "_round_replay.html", "_actions.csv", "_interlocks.csv", "_round_executed.png",
                    "_round_executed_replay.html"):
         assert (tmp / f"small{suffix}").stat().st_size > 0, suffix
-    # the zones file, for every rig: its header alone, as the planner chooses no zone yet
+    # the zones file, for every rig: its header alone here (the search keeps no zone on this small round)
     assert (tmp / "small_zones.csv").read_text() == "zone,boom,first_action,last_action\n"
     on_disk = json.loads((tmp / "small_round.json").read_text())
     for key in ("makespan_s", "lower_bound_s", "naive_makespan_s", "nearest_makespan_s", "min_boom_clearance_m",

@@ -26,6 +26,11 @@
 5. Interlocks implied by others and the sequences are dropped (transitive reduction of the DAG,
    :func:`pipeline.events.graph.reduce_edges`: a reachability matrix, cheap for hundreds of
    actions); the execution is the same with or without them.
+6. With ``zone_search``, zones where an interlock makes a boom stand (:mod:`pipeline.events.zone_choice`,
+   proved by :mod:`pipeline.events.zone_proof` against the graph of step 2 and the nominal round of
+   step 4): their interlocks are taken away, the rest reduced again, and the nominal round re-timed under
+   the rule with the zones and scanned once more (were it not clear, the zones would be dropped, said in
+   ``stats["zones_dropped"]``).
 
 **Why any execution is then clear** (the robustness argument). Let T be the re-timed nominal
 timeline, clear at every instant by the scan (standing included), and let every conflicting pair be
@@ -56,8 +61,10 @@ import numpy as np
 
 from pipeline.events.actions import Actions, actions_of
 from pipeline.events.conflicts import Conflicts, conflicts
+from pipeline.events.draws import DrawSettings, draws
 from pipeline.events.graph import find_cycle, reduce_edges
 from pipeline.events.rule import Execution, execute, realised
+from pipeline.events.zone_choice import ZoneSettings, choose_zones
 from pipeline.events.zones import NO_ZONES, Zones
 from pipeline.round.problem import Instance
 from pipeline.round.timeline import Timeline, scan
@@ -75,7 +82,7 @@ class RobustRound:
     conflicts: Conflicts
     stats: dict = field(default_factory=dict)
     problem: str | None = None
-    zones: Zones = NO_ZONES  # no zone is chosen yet: every conflicting pair is ordered by an interlock
+    zones: Zones = NO_ZONES  # where either boom may go first (step 6); none: every conflicting pair is ordered
 
 
 def _rank(acts: Actions) -> np.ndarray:
@@ -133,8 +140,11 @@ def _orient(edges: set, u: int, v: int) -> set:
     return (edges - {(v, u)}) | {(u, v)}
 
 
-def robust_round(inst: Instance, tl: Timeline, oracle, max_flips: int | None = None) -> RobustRound:
-    """Interlocks for the planned timeline ``tl`` (module docstring)."""
+def robust_round(inst: Instance, tl: Timeline, oracle, max_flips: int | None = None,
+                 zone_search: tuple[ZoneSettings, DrawSettings] | None = None) -> RobustRound:
+    """Interlocks for the planned timeline ``tl`` (module docstring); with ``zone_search`` (the zones'
+    settings and the draws' whose first random draws the search runs on), zones where they cut the
+    standing (step 6, :mod:`pipeline.events.zone_choice`)."""
     started = time.perf_counter()
     acts = actions_of(inst, tl)
     conf = conflicts(acts, oracle)
@@ -183,6 +193,10 @@ def robust_round(inst: Instance, tl: Timeline, oracle, max_flips: int | None = N
     kept = reduce_edges(len(acts), seq, all_edges) if problem is None else all_edges
     timed = Actions(acts.booms, acts.hole_ids, acts.boom, acts.index, acts.kind, acts.hole, acts.src, acts.dst,
                     ex.start[0].copy(), ex.end[0].copy())
+    zones, zone_stats = NO_ZONES, {"zones": 0}
+    if problem is None and zone_search is not None:
+        zones, kept, ex, nominal, timed, zone_stats = _with_zones(inst, acts, timed, all_edges, conf, oracle,
+                                                                  zone_search, kept, ex, nominal)
     _, n_left, least = scan(nominal, oracle, full=True)
     stats = {"actions": len(acts), "pairs_screened": len(conf.pairs), "conflicting_pairs": len(pairs),
              "overlapping_in_plan": int(overlap.sum()), "interlocks_before_reduction": len(all_edges),
@@ -190,8 +204,36 @@ def robust_round(inst: Instance, tl: Timeline, oracle, max_flips: int | None = N
              "min_clearance_m": float(least) if np.isfinite(least) else None,  # None: one boom, no pair
              "plan_makespan_s": tl.makespan,
              "nominal_makespan_s": nominal.makespan, "clearance_evaluations": conf.evaluations,
-             "sweeps_s": swept, "build_s": time.perf_counter() - started}
-    return RobustRound(timed, kept, nominal, conf, stats, problem)
+             "sweeps_s": swept, "build_s": time.perf_counter() - started, **zone_stats}
+    return RobustRound(timed, kept, nominal, conf, stats, problem, zones)
+
+
+def _with_zones(inst, acts, timed, all_edges, conf, oracle, zone_search, kept, ex, nominal):
+    """Step 6: the zones chosen on the robust round, the interlocks they leave, the nominal round
+    re-timed under the rule with them (scanned: were it not clear, the zones are dropped, said)."""
+    zs, ds = zone_search
+    d = draws(timed, ds)
+    rand = np.flatnonzero([lab == "random" for lab in d.labels])[:zs.search_draws]
+    factors = d.factors[rand] if len(rand) else d.factors[:1]
+    K = len(acts)
+    conflict = np.zeros((K, K), bool)
+    pairs = conf.conflicting
+    conflict[pairs[:, 0], pairs[:, 1]] = conflict[pairs[:, 1], pairs[:, 0]] = True
+    choice = choose_zones(timed, all_edges, precedence_edges(inst, acts), conflict, inst.drill_s, factors, zs)
+    stats = {f"zone_{k}" if not k.startswith("zone") else k: v for k, v in choice.stats.items()
+             if k != "proof_problems"}
+    stats["zone_proofs_refused"] = choice.stats.get("proof_problems", [])[:5]
+    if not len(choice.zones):
+        return NO_ZONES, kept, ex, nominal, timed, stats
+    edges = reduce_edges(K, acts.sequence_edges(), choice.edges)
+    ex_z = execute(acts, edges, inst.drill_s, choice.zones)
+    _, nominal_z = realised(inst, acts, ex_z)
+    if ex_z.deadlocked.any() or scan(nominal_z, oracle) is not None:  # the proof says it cannot happen: said
+        stats.update(zones=0, zones_dropped="the nominal round with zones was not clear or deadlocked")
+        return NO_ZONES, kept, ex, nominal, timed, stats
+    timed_z = Actions(acts.booms, acts.hole_ids, acts.boom, acts.index, acts.kind, acts.hole, acts.src, acts.dst,
+                      ex_z.start[0].copy(), ex_z.end[0].copy())
+    return choice.zones, edges, ex_z, nominal_z, timed_z, stats
 
 
 def _say(acts: Actions, s) -> str:

@@ -2,7 +2,8 @@
 Monte Carlo of drilling durations, and one realised round to look at.
 
 :func:`robust_finish` returns the hook :func:`pipeline.round.from_plan.schedule_round` calls once the
-round is planned (``finish``): it builds the interlocks (:func:`~pipeline.events.interlocks.robust_round`),
+round is planned (``finish``): it builds the interlocks and chooses the zones
+(:func:`~pipeline.events.interlocks.robust_round`, :mod:`pipeline.events.zone_choice`),
 hands back the re-timed nominal timeline (the one the trajectory file is written from, which the
 execution rule reproduces exactly with the reference's durations) and keeps what the stage writes: the
 actions, interlocks and zones tables, the draws' summary, and the slowest random draw as a realised round.
@@ -20,6 +21,7 @@ from pipeline.events.actions import actions_table, interlocks_table
 from pipeline.events.draws import Draws, DrawSettings, draws, run, summary
 from pipeline.events.interlocks import RobustRound, robust_round
 from pipeline.events.rule import Execution, realised
+from pipeline.events.zone_choice import ZoneSettings
 from pipeline.events.zones import zones_table
 from pipeline.round.problem import Instance
 from pipeline.round.timeline import Timeline
@@ -41,19 +43,22 @@ class Executed:
     extra: dict = field(default_factory=dict)
 
 
-def robust_finish(settings: DrawSettings, say=None):
-    """``finish(inst, timeline, oracle) -> (timeline, Executed)`` for ``schedule_round``."""
+def robust_finish(settings: DrawSettings, say=None, zones: ZoneSettings | None = None):
+    """``finish(inst, timeline, oracle) -> (timeline, Executed)`` for ``schedule_round``; ``zones``: how
+    the zones are chosen (None: the defaults of ``conf/zones/default.yaml``)."""
     say = say or (lambda _m: None)
+    zones = zones if zones is not None else ZoneSettings()
 
     def finish(inst: Instance, tl: Timeline, oracle):
-        rr = robust_round(inst, tl, oracle)
+        rr = robust_round(inst, tl, oracle, zone_search=(zones, settings))
         nominal = rr.timeline
         nominal.repairs, nominal.sequential = tl.repairs, tl.sequential  # the plan's waits, now interlocks
         nominal.conflicts_left = int(rr.stats["conflicts_left"])
         least = rr.stats["min_clearance_m"]
         nominal.min_clearance = math.inf if least is None else float(least)
         say(f"interlocks: {rr.stats['interlocks']} ({rr.stats['conflicting_pairs']} conflicting pairs of actions, "
-            f"{rr.stats['overlapping_in_plan']} serialised); nominal makespan {nominal.makespan:.1f} s")
+            f"{rr.stats['overlapping_in_plan']} serialised), {len(rr.zones.names)} zone(s); nominal makespan "
+            f"{nominal.makespan:.1f} s")
         d = draws(rr.actions, settings)
         ex = run(rr.actions, rr.interlocks, inst.drill_s, d, rr.zones)
         s = summary(ex, nominal.makespan, d)

@@ -112,3 +112,18 @@ def read_zones(path, actions: pd.DataFrame, acts: Actions, actions_path="actions
                              "booms")
     check_zones(acts, zones, str(path))
     return zones
+
+
+def entry_orders(acts: Actions, zones: Zones) -> np.ndarray:
+    """``(n, 2)`` interlocks that fix each zone's entry order as the actions' planned times have it (the
+    nominal round): the section entered first ends before the next one's first action starts, and so on
+    (a tie: the rig's first boom first, the rule's tie-break). Every execution with them is one of the
+    round's with its zones (the sections never overlap), and the nominal round satisfies them, so they
+    close no cycle: the round, its zones fixed, is robust as the round with zones was proved."""
+    out = []
+    for name in zones.names:
+        s = [i for i, z in enumerate(zones.zone) if z == name]
+        f, la = np.asarray(zones.first)[s], np.asarray(zones.last)[s]
+        order = np.lexsort((acts.boom[f], acts.t_start[f]))
+        out += [(int(la[i]), int(f[j])) for i, j in zip(order[:-1], order[1:], strict=True)]
+    return np.array(out, int).reshape(-1, 2)

@@ -24,6 +24,7 @@ import pandas as pd
 from pipeline.core.io import write_csv
 from pipeline.events.draws import STANDING_CAUSES, DrawSettings
 from pipeline.events.robust_round import robust_finish
+from pipeline.events.zone_choice import ZoneSettings
 from pipeline.geometry.collision import SafetyModel
 from pipeline.geometry.rig import Rig
 from pipeline.motion.timing import MotionModel
@@ -50,12 +51,14 @@ class BenchRig:
 
 def round_benchmark(faces: Sequence, rigs: Sequence[BenchRig], hybrid: HybridSettings, settings: RoundSettings,
                     first_start: Callable, seed: int = 0, say=print, trajectories: Path | None = None,
-                    box: dict | None = None, draw_settings: DrawSettings | None = None) -> pd.DataFrame:
+                    box: dict | None = None, draw_settings: DrawSettings | None = None,
+                    zone_settings: ZoneSettings | None = None) -> pd.DataFrame:
     """One row per (face, rig); ``faces``: "demo" or hole counts; ``trajectories``: a folder to write
     each cell's set into (``<face>_<rig>.csv``, the plan, and its ``_round.csv``, ``_round.json``,
     ``_trajectory.csv``, ``_actions.csv``, ``_interlocks.csv``, ``_zones.csv``); ``box``: the reach table's joint box
     (``holes.sup.box``, as the stage passes it: None is the full ranges); ``draw_settings``: the round made
-    robust and its draws (module docstring), None for the clock-timed round alone."""
+    robust and its draws (module docstring), None for the clock-timed round alone; ``zone_settings``: how
+    its zones are chosen (None: the defaults)."""
     rows = []
     for case in rigs:
         rig, safety, motions, rig_name = case.rig, case.safety, case.motions, case.rig.name
@@ -65,7 +68,7 @@ def round_benchmark(faces: Sequence, rigs: Sequence[BenchRig], hybrid: HybridSet
             solvers, reach = solved_reach(plan, rig, first_start, hybrid, box, "hybrid")
             postures = round_postures(plan, rig, solvers, reach, motions, settings)
             reach_s = time.perf_counter() - started
-            finish = robust_finish(draw_settings) if draw_settings is not None else None
+            finish = robust_finish(draw_settings, zones=zone_settings) if draw_settings is not None else None
             res = schedule_round(rig, plan, reach, motions, settings, True, True, finish=finish, postures=postures)
             s = res.summary
             row = {"face": f"demo ({len(plan)})" if face == "demo" else f"gen {face} ({len(plan)})",
@@ -107,13 +110,14 @@ def _executed(ex) -> dict:
     """The robust round's columns (NaN where the round was not made robust)."""
     nan = float("nan")
     if ex is None:
-        return {"plan_makespan_s": nan, "robust_price_pct": nan, "interlocks": nan, "robust": nan,
+        return {"plan_makespan_s": nan, "robust_price_pct": nan, "interlocks": nan, "zones": nan, "robust": nan,
                 "deadlocks": nan, "exec_p50": nan, "exec_p95": nan, "standing_p95_pct": nan,
                 **{f"{c}_p{q}_pct": nan for c in STANDING_CAUSES for q in (50, 95)}}
     s, r = ex.summary, ex.summary["random"] or {}
     return {"plan_makespan_s": s["plan_makespan_s"],
             "robust_price_pct": 100.0 * (s["nominal_makespan_s"] / s["plan_makespan_s"] - 1.0),
-            "interlocks": s["interlocks"]["interlocks"], "robust": bool(s["robust"]), "deadlocks": s["deadlocks"],
+            "interlocks": s["interlocks"]["interlocks"], "zones": s["interlocks"].get("zones", 0),
+            "robust": bool(s["robust"]), "deadlocks": s["deadlocks"],
             "exec_p50": r.get("makespan_ratio_p50", nan), "exec_p95": r.get("makespan_ratio_p95", nan),
             "standing_p95_pct": 100.0 * r.get("standing_share_p95", nan),
             **{f"{c}_p{q}_pct": 100.0 * r.get(f"{c}_share_p{q}", nan) for c in STANDING_CAUSES for q in (50, 95)}}
@@ -122,7 +126,7 @@ def _executed(ex) -> dict:
 def markdown(table: pd.DataFrame) -> str:
     cols = ["face", "rig", "drilled", "makespan_s", "lower_bound_s", "ratio", "naive_s", "nearest_s", "moving_s",
             "waiting_s", "planning_s", "min_boom_clearance_m", "waits", "sequential", "detours", "moves_failed",
-            "plan_makespan_s", "robust_price_pct", "interlocks", "exec_p95", "standing_p95_pct",
+            "plan_makespan_s", "robust_price_pct", "interlocks", "zones", "exec_p95", "standing_p95_pct",
             *(f"{c}_p{q}_pct" for c in STANDING_CAUSES for q in (50, 95))]
     out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for _, r in table.iterrows():

@@ -51,8 +51,10 @@ not checked; the wait before a section's first action can last (the boom stands 
 the zone). A zone can also deadlock: boom b inside its section can wait, through interlocks, for the
 end of a's action that enters the same zone (``R[entry_a, last_b]``) while b may have got in first
 (not ``R[entry_a, entry_b]``): reported, for every pair of sections. Circular waits through several
-zones (or three booms) are not found statically; the draws (:func:`round_check.execute.execute_zones`)
-report those they meet.
+zones (or three booms) are found by exploring every interleaving (:mod:`round_check.interleavings`:
+each boom's progress a digit, every order of entering the zones tried; not explored beyond 50 M
+states, then said as not certified); the draws (:func:`round_check.execute.execute_zones`) report those
+they meet too.
 
 **The check.** Every unordered pair must keep d_boom between every configuration of one segment and
 every configuration of the other (the whole swept set against the whole swept set, not only at equal
@@ -75,6 +77,7 @@ from .actions import Actions, Interlocks, Zones
 from .episodes import Floors
 from .episodes import least as least_distance
 from .execute import Graph
+from .interleavings import explore
 
 MAX_LISTED = 200  # violating pairs listed in the JSON (all are counted)
 MAX_MESSAGES = 20
@@ -252,6 +255,12 @@ def certify(acts: Actions, locks: Interlocks, zones: Zones, g: Graph, floors: di
     if n_unclear > len(unclear):
         unclear.append(f"certified: {n_unclear - len(unclear)} more unordered pairs not certified")
     dead = zone_deadlocks(acts, zones, order)
+    every = explore(acts, locks, zones) if len(zones) else {"explored": True, "states": None, "deadlock": None}
+    if every["deadlock"] is not None:  # through several zones or booms, in some order of entries
+        dead.append(f"zone deadlock: in some order of entering the zones no boom can go on, standing before "
+                    f"{', '.join(every['deadlock'])}")
+    if not every["explored"]:
+        unclear.append(f"certified: deadlock over every order of entering the zones not explored: {every['why']}")
     msgs += dead[:MAX_MESSAGES]
     out = {
         "definition": DEFINITION,
@@ -266,7 +275,9 @@ def certify(acts: Actions, locks: Interlocks, zones: Zones, g: Graph, floors: di
         "violating_pairs": n_viol, "violating": listed, "not_certified_pairs": n_unclear,
         "not_certified": listed_unclear, "zones": {"sections": len(zones), "zones": len(set(zones.zone)),
                                                    "file": str(zones.path) if zones.path else None,
-                                                   "possible_deadlocks": len(dead)},
+                                                   "possible_deadlocks": len(dead),
+                                                   "interleavings_explored": every["explored"],
+                                                   "states": every["states"]},
         "time_s": time.perf_counter() - t0,
     }
     return out, msgs, unclear
