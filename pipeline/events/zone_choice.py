@@ -65,10 +65,12 @@ class Choice:
 
 
 def _standing_p95(acts: Actions, edges: np.ndarray, dur_s: np.ndarray, zones: Zones):
-    """p95 over draws of the standing share, the nominal-free makespans, and whether any draw deadlocked."""
+    """The p95 over the draws of the standing share (summed over booms, over each draw's makespan), and
+    the draws' execution."""
     ex = execute(acts, edges, dur_s, zones)
     span = np.where(ex.makespan > 0, ex.makespan, 1.0)
-    return float(np.percentile(ex.standing.sum(1) / span, 95)), ex
+    with np.errstate(invalid="ignore", over="ignore"):  # a deadlocked draw (inf), refused by the caller
+        return float(np.percentile(ex.standing.sum(1) / span, 95)), ex
 
 
 def zones_of(sections: list[tuple[int, int, int, int]]) -> Zones:
