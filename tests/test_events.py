@@ -317,3 +317,27 @@ def test_draw_settings_are_checked():
         parse_draws({"low": 1.2, "high": 1.0})
     with pytest.raises(ConfigError, match="draws.draw"):
         parse_draws({"draw": 5})
+
+
+def test_the_round_made_robust_with_zones_keeps_only_what_is_proved_and_clear(round_):
+    """Step 6 on the middle holes' round: the search runs (its candidates counted), what it keeps (here
+    nothing cuts the standing within the makespan slack) is proved with the round's own conflicts, the
+    re-timed nominal round is clear, the standing is not worse; with zones.choose = false the round is
+    the one without zones."""
+    from pipeline.events.draws import DrawSettings
+    from pipeline.events.zone_choice import ZoneSettings, prove
+    from pipeline.events.zones import NO_ZONES
+
+    inst, oracle, tl, plain = round_
+    rr = robust_round(inst, tl, oracle, zone_search=(ZoneSettings(), DrawSettings(count=200)))
+    assert rr.problem is None and rr.stats["zone_candidates"] > 0 and rr.stats["zones"] == len(rr.zones.names)
+    assert rr.stats["zone_standing_p95_after"] <= rr.stats["zone_standing_p95_before"]
+    assert scan(rr.timeline, oracle) is None
+    conflict = np.zeros((len(rr.actions), len(rr.actions)), bool)
+    pairs = rr.conflicts.conflicting
+    conflict[pairs[:, 0], pairs[:, 1]] = conflict[pairs[:, 1], pairs[:, 0]] = True
+    assert prove(rr.actions, rr.interlocks, rr.zones, conflict) is None
+    # the proof is not vacuous on this round: without its interlocks the middle drills may overlap
+    assert prove(rr.actions, np.zeros((0, 2), int), NO_ZONES, conflict) is not None
+    off = robust_round(inst, tl, oracle, zone_search=(ZoneSettings(choose=False), DrawSettings(count=200)))
+    assert off.zones is NO_ZONES and np.array_equal(off.interlocks, plain.interlocks)
