@@ -3,8 +3,10 @@
     python -m pipeline.evaluate                    # methods of eval.methods
     python -m pipeline.evaluate eval.methods=[cuikm]
 
-Writes under ``paths.data/eval/``: ``predictions/<method>_group<k>.parquet``,
-``metrics.json``, ``collisions.csv`` (paper 000 Table 3 layout) and ``figures/``.
+Writes under ``paths.data/eval/``: ``predictions/<method>_group<k>.parquet`` (the network the other stages
+use), ``predictions/<method>_seed<s>_group<k>.parquet`` (each seed's, when trained with ``train.seeds``),
+``metrics.json`` (each method's metrics, with the mean and std over its seeds), ``seeds.csv`` (one row per
+method and seed), ``collisions.csv`` (paper 000 Table 3 layout) and ``figures/``.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from pipeline.core.stage import run_stage, stage_main
 from pipeline.data.hole_sets import read_test_groups
 from pipeline.evaluation.metrics import MethodEvaluation, collision_table, evaluate_network, summary_frame
 from pipeline.evaluation.plots import face_projection, method_comparison, training_curves
+from pipeline.evaluation.seeds import seed_checkpoints, seed_spread, seed_table
 from pipeline.learning.network_source import load_network
 from pipeline.tracking.runs import TrackingSettings, stage_run
 
@@ -43,14 +46,23 @@ def run(cfg: DictConfig) -> dict:
     groups = read_test_groups(data / "holes")
     # every network loaded and checked before anything is written
     networks = {m: load_network(data / "models" / f"{m}.pt", safety.boom) for m in settings.methods}
+    seeds = {m: {seed: load_network(path, safety.boom) for seed, path in seed_checkpoints(data / "models", m).items()}
+             for m in settings.methods}
     with stage_run(tracking, "evaluate", {"stage": "evaluate"}) as mlrun:
         mlrun.log_params({"eval": vars(settings), "safety": dict(cfg.safety)})
         for k, (df, _) in groups.items():
             mlrun.log_dataset(df, data / "holes" / f"test_group_{k}.parquet", "evaluation")
         results = {m: evaluate_network(model, meta, safety, groups, settings.timing_repeats)
                    for m, (model, meta) in networks.items()}
-        figures = write_results(results, groups, safety, data / "eval")
+        by_seed = {m: {seed: evaluate_network(model, meta, safety, groups, 0) for seed, (model, meta) in nets.items()}
+                   for m, nets in seeds.items() if nets}
+        table = seed_table({m: {s: r.metrics for s, r in rs.items()} for m, rs in by_seed.items()},
+                           {m: networks[m][1].get("seed") for m in by_seed})
+        for m, spread in seed_spread(table).items():
+            results[m].metrics.update(spread)
+        figures = write_results(results, groups, safety, data / "eval", by_seed, table)
         metrics = {m: r.metrics for m, r in results.items()}
+        mlrun.log_table(table, "tables/seeds.json")
         for m, values in metrics.items():
             mlrun.log_metrics(values, prefix=f"{m}.")
         mlrun.log_table(collision_table({(k, m): r.tables[k] for m, r in results.items() for k in r.tables}),
@@ -60,17 +72,27 @@ def run(cfg: DictConfig) -> dict:
             mlrun.log_figure(fig, f"figures/{name}")
         mlrun.log_artifact(data / "eval" / "metrics.json")
     for m, s in metrics.items():
-        log.info("%s: hole-seeking error mean %.2f mm (p95 %.2f), collision rate %.2f %%, %.2f ms / 1000 holes",
-                 m, s["hole_mm_mean"], s["hole_mm_p95"], 100 * s["collision_rate_paper"], s["solve_ms_per_1000"])
+        spread = (f"; over {s['seeds']} seeds {s['mean_mm_seed_mean']:.2f} +- {s['mean_mm_seed_std']:.2f} mm, "
+                  f"{s['collision_rate_pct_seed_mean']:.2f} +- {s['collision_rate_pct_seed_std']:.2f} %"
+                  if "seeds" in s else "")
+        log.info("%s: hole-seeking error mean %.2f mm (p95 %.2f), collision rate %.2f %%, %.2f ms / 1000 holes%s",
+                 m, s["hole_mm_mean"], s["hole_mm_p95"], 100 * s["collision_rate_paper"], s["solve_ms_per_1000"],
+                 spread)
     return metrics
 
 
-def write_results(results: dict[str, MethodEvaluation], groups, safety, out: Path) -> dict:
-    """Predictions per method and group, ``metrics.json``, ``collisions.csv`` and the figures;
-    returns the figures by file name (still open, for MLflow)."""
+def write_results(results: dict[str, MethodEvaluation], groups, safety, out: Path,
+                  by_seed: dict[str, dict[int, MethodEvaluation]], seeds: pd.DataFrame) -> dict:
+    """Predictions per method (and seed) and group, ``metrics.json``, ``seeds.csv``, ``collisions.csv`` and the
+    figures; returns the figures by file name (still open, for MLflow)."""
     for m, r in results.items():
         for k, pred in r.predictions.items():
             write_parquet(pred, out / "predictions" / f"{m}_group{k}.parquet")
+    for m, rs in by_seed.items():
+        for seed, r in rs.items():
+            for k, pred in r.predictions.items():
+                write_parquet(pred, out / "predictions" / f"{m}_seed{seed}_group{k}.parquet")
+    write_csv(seeds, out / "seeds.csv")
     write_json({m: r.metrics for m, r in results.items()}, out / "metrics.json")
     write_csv(collision_table({(k, m): r.tables[k] for m, r in results.items() for k in r.tables}),
               out / "collisions.csv")

@@ -2,7 +2,8 @@
 
     python -m pipeline.report
 
-Writes ``paths.data/report/README.md`` and its figures, and logs them to MLflow.
+Writes ``paths.data/report/README.md`` and its figures, and ``seeds.csv`` (``method, seed, kept, mean_mm,
+collision_rate_pct``: each seed's network on the test groups), and logs them to MLflow.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from omegaconf import DictConfig
 
 from pipeline.core.config import project_path
 from pipeline.core.errors import InputError
-from pipeline.core.io import copy_file, write_text
+from pipeline.core.io import copy_file, write_csv, write_text
 from pipeline.core.stage import run_stage, stage_main
 from pipeline.evaluation.markdown import markdown_rows
 from pipeline.evaluation.paper_numbers import PAPER000, PAPER000_CUIKM_GAIN, PAPER000_TABLE3
@@ -29,9 +30,17 @@ def _fmt(value, spec: str = ".2f") -> str:
     return "—" if value is None else format(value, spec)
 
 
-METRIC_HEADER = ["method", "mean hole-seeking error (mm)", "paper", "median", "p95", "max",
-                 "direction error mean (deg)", "collision rate (%)", "paper (%)", "holes with any violation (%)",
-                 "solve time / 1 000 holes (ms)"]
+METRIC_HEADER = ["method", "mean hole-seeking error (mm)", "over seeds (mm)", "paper", "median", "p95", "max",
+                 "direction error mean (deg)", "collision rate (%)", "over seeds (%)", "paper (%)",
+                 "holes with any violation (%)", "solve time / 1 000 holes (ms)"]
+SEED_REPORT_COLUMNS = ["method", "seed", "kept", "mean_mm", "collision_rate_pct"]
+
+
+def _spread(s: dict, key: str, spec: str = ".2f") -> str:
+    """``mean ± std (n)`` over the method's seeds, or — for a method trained once."""
+    if s.get("seeds", 0) < 2:
+        return "—"
+    return f"{format(s[key + '_seed_mean'], spec)} ± {format(s[key + '_seed_std'], spec)} ({s['seeds']})"
 
 
 LOOP_HEADER = ["round", "holes within tolerance", "collar deviation mean / p95 / max (mm)", "toe deviation mean (mm)",
@@ -58,16 +67,19 @@ def render(metrics: dict, collisions: pd.DataFrame, figures: list[str], loop: di
         "# IK study report",
         "",
         "Measured on the five test groups (1 000 holes each unless configured otherwise), next to Wu et al. 2024.",
+        "The first figures are the network the other stages use (the seed with the best held-out error); "
+        "\"over seeds\" gives the mean ± std over every seed trained (their count in brackets).",
         "",
     ]
     rows = []
     for m in sorted(metrics, key=lambda m: (list(PAPER000).index(m) if m in PAPER000 else 0.5, m)):
         s, paper = metrics[m], PAPER000.get(m, {})
-        rows.append([m.upper(), f"{s['hole_mm_mean']:.2f}", _fmt(paper.get("hole_mm_mean"), ".1f"),
+        rows.append([m.upper(), f"{s['hole_mm_mean']:.2f}", _spread(s, "mean_mm"),
+                     _fmt(paper.get("hole_mm_mean"), ".1f"),
                      f"{s['hole_mm_median']:.2f}", f"{s['hole_mm_p95']:.2f}", f"{s['hole_mm_max']:.1f}",
                      f"{s['direction_deg_mean']:.3f}", f"{100 * s['collision_rate_paper']:.2f}",
-                     _fmt(paper.get("collision_rate_pct")), f"{100 * s['any_violation_share']:.2f}",
-                     f"{s['solve_ms_per_1000']:.2f}"])
+                     _spread(s, "collision_rate_pct"), _fmt(paper.get("collision_rate_pct")),
+                     f"{100 * s['any_violation_share']:.2f}", f"{s['solve_ms_per_1000']:.2f}"])
     lines.append(markdown_rows(METRIC_HEADER, rows).rstrip("\n"))
     if "sikm" in metrics and "cuikm" in metrics:  # paper 000's headline: CUIKM's error reduction over SIKM
         gain = 1 - metrics["cuikm"]["hole_mm_mean"] / metrics["sikm"]["hole_mm_mean"]
@@ -97,6 +109,7 @@ def run(cfg: DictConfig) -> str:
             raise InputError(f"{needed}: missing; run python -m pipeline.evaluate (or dvc repro evaluate) first")
     metrics = json.loads((ev / "metrics.json").read_text())
     collisions = pd.read_csv(ev / "collisions.csv")
+    seeds = pd.read_csv(ev / "seeds.csv") if (ev / "seeds.csv").is_file() else pd.DataFrame(columns=SEED_REPORT_COLUMNS)
     # the evaluation's figures, and paper 000's Fig. 5 (the hole sets' collars) from generate
     sources = {p.name: p for p in [*sorted((ev / "figures").glob("*.png")), data / "figures" / "collar_clouds.png"]
                if p.is_file()}
@@ -111,6 +124,8 @@ def run(cfg: DictConfig) -> str:
                 if path.is_file()}
         text = render(metrics, collisions, figures, loop)
         write_text(text, out / "README.md")
+        write_csv(seeds[SEED_REPORT_COLUMNS], out / "seeds.csv")  # one row per method and seed: the error bars' data
+        mlrun.log_artifact(out / "seeds.csv", "report")
         mlrun.log_text(text, "report/README.md")
         mlrun.log_artifact(out / "figures", "report/figures")
     log.info("report written to %s", out / "README.md")

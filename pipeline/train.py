@@ -20,8 +20,11 @@ prints them beside its own, so that a short training's figure is read for what i
 
 from __future__ import annotations
 
+import json
 import logging
+import os
 import shutil
+import statistics
 import tempfile
 import time
 from collections.abc import Mapping
@@ -36,8 +39,8 @@ from pipeline.assembly.build import build_safety, hole_sampling
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.device import resolve_device
 from pipeline.core.errors import ConfigError
-from pipeline.core.io import publish, publish_lock, require_writable, write_csv, write_json
-from pipeline.core.settings import RuntimeSettings, coerce, parse
+from pipeline.core.io import process_token, publish, publish_lock, require_writable, write_csv, write_json
+from pipeline.core.settings import SEED_MAX, RuntimeSettings, coerce, parse
 from pipeline.core.stage import run_stage, stage_main
 from pipeline.data.tables import POSE_COLUMNS
 from pipeline.evaluation.metrics import solution_table, summarize
@@ -55,12 +58,23 @@ from pipeline.learning.training import (
     save_training_state,
     training_batches,
     training_digest,
+    training_dtype,
 )
 from pipeline.tracking import sweep
-from pipeline.tracking.runs import StageRun, TrackingSettings, log_training_progress, select_params, stage_run
+from pipeline.tracking.runs import (
+    StageRun,
+    TrackingSettings,
+    log_training_progress,
+    register_network,
+    select_params,
+    stage_run,
+)
 
 log = logging.getLogger(__name__)
 RESUME_FILE = "resume.pt"
+DONE_DIR = "done"                                     # a finished seed's files, waiting for the others
+LOGGED_MODEL_FILE = "logged_model.txt"                # beside them: the MLflow model's URI
+OUTPUT_SUFFIXES = (".pt", "_history.csv", "_final.json")
 
 
 # What a training reads, and so what its run logs as params (not the other stages' settings).
@@ -88,7 +102,12 @@ class StudyFigures:
 
 
 def run(cfg: DictConfig) -> dict:
-    """Train the configured method; returns the final held-out metrics and the checkpoint path."""
+    """Train the configured method once per seed (``train.seeds`` of them, from ``train.seed`` up); returns the
+    chosen network's final held-out metrics and its checkpoint path.
+
+    Each seed's network is ``<method>_seeds/seed<k>.pt`` (with its history and summary); the network the other
+    stages read, ``<method>.pt``, is the seed with the best held-out hole-seeking error (held-out holes, never a
+    test group; ties to the lower seed), and its summary adds every seed's figure with their mean and std."""
     settings, model_s, tracking = (TrainSettings.from_config(cfg.train), ModelSettings.from_config(cfg.model),
                                    TrackingSettings.from_config(cfg.tracking))
     runtime = RuntimeSettings.from_config(cfg)
@@ -96,62 +115,27 @@ def run(cfg: DictConfig) -> dict:
     study = None if tour is None else parse(StudyFigures, as_dict(tour), "tour")
     check_method_key(settings.method_key, OmegaConf.select(cfg, settings.method_key))
     method = MethodSettings.from_config(OmegaConf.select(cfg, settings.method_key), settings.method_key)
+    if settings.seed + settings.seeds - 1 > SEED_MAX:
+        raise ConfigError(f"train.seed = {settings.seed} with train.seeds = {settings.seeds}: the last seed "
+                          f"passes {SEED_MAX}")
     device = resolve_device(cfg.device)
     safety, sampling = build_safety(cfg.boom, cfg.tunnel, cfg.safety), hole_sampling(cfg.holes)
-    train_safety = safety.with_distances(SafetyDistances.from_config(method.train_safety))
-    steps = method.steps(settings.steps)
     # A sweep job keeps its model in its own job folder; a single run writes paths.data/models.
     job_dir = sweep.job_output_dir()
     models_dir = require_writable(job_dir or project_path(cfg.paths.data) / "models", "paths.data")
     data = load_training_data(project_path(cfg.paths.data) / "holes", safety.boom, safety, sampling,
                               method.supervised, settings.val_size, settings.val_seed, method.sup_set)
-    with torch.random.fork_rng(devices=[]):  # seeded initial weights without touching the global generator
-        torch.manual_seed(settings.seed)
-        model = build_model(safety.boom, data.pose.mean(0), data.pose.std(0), model_s.width, model_s.depth,
-                            model_s.activation).to(device)
-    run_cfg = {"method": as_dict(OmegaConf.select(cfg, settings.method_key)),
-               **select_params(as_dict(cfg), PARAM_KEYS)}
-    if safety.tunnel.kind == "profile":  # the drift the penalties keep from is the file's content, not its name
-        run_cfg["tunnel_profile_md5"] = safety.tunnel.md5
-    digest = training_digest(_digest_config(run_cfg, str(device)), [path for path, _ in data.files.values()])
-    run_dir = models_dir / f".{method.name}.run-{digest[:12]}"  # private to this training (config, data, code)
-    resume = load_training_state(run_dir / RESUME_FILE, digest) if runtime.resume else None
-    tags = {"stage": "train", "method": method.name, "train.digest": digest, **sweep.child_tags()}
-    with stage_run(tracking, f"train-{method.name}", tags, system_metrics=True,
-                   resume_run_id=resume and resume.get("mlflow_run_id")) as mlrun:
-        sweep.record_job_run(mlrun.run_id)
-        mlrun.log_params({**run_cfg, "steps_trained": steps})  # train.steps, or the method's max_steps below it
-        inputs = {context: mlrun.log_dataset(df, path, context) for context, (path, df) in data.files.items()}
-        inputs["validation"] = mlrun.log_frame_dataset(
-            pd.DataFrame(data.val_pose.numpy(), columns=POSE_COLUMNS), f"held-out holes (val_seed={settings.val_seed})",
-            "validation")
-        if resume is not None:
-            mlrun.set_tags({"resumed_at_step": str(resume["step"])})
-            log.info("train %s: resuming at step %d of %d from %s", method.name, resume["step"], steps,
-                     run_dir / RESUME_FILE)
-
-        def save_state(state: dict) -> None:
-            save_training_state(run_dir / RESUME_FILE, state, digest, {"mlflow_run_id": mlrun.run_id})
-            mlrun.log_artifact(run_dir / RESUME_FILE, "checkpoints")
-
-        t0 = time.perf_counter()
-        history = fit(model, safety.boom, train_safety, method.objective,
-                      training_batches(data, method.objective, settings, safety, sampling, device),
-                      steps, settings.lr, data.val_pose.float().to(device), settings.eval_every,
-                      settings.grad_clip, progress=runtime.progress, keep_best=settings.keep_best,
-                      on_eval=lambda step, rec, elapsed: log_training_progress(
-                          mlrun, step, steps, rec, elapsed, method.name, echo=not runtime.progress),
-                      checkpoints=Checkpoints(save_state, runtime.checkpoint_every, resume))
-        model = model.cpu()
-        train_s = time.perf_counter() - t0 + (resume["elapsed_s"] if resume else 0.0)
-        final = final_metrics(model, data.val_pose.float(), lambda p, q: summarize(solution_table(p, q, safety)),
-                              history, train_s)
-        register = tracking.register_models and job_dir is None  # a sweep's variants stay in their runs
-        save_outputs(model, history, final, models_dir, run_dir, method.name, as_dict(cfg.boom), run_cfg, mlrun,
-                     f"{tracking.experiment}-{method.name}" if register else None, runtime.log_model,
-                     data.val_pose[:4].float().numpy(), inputs)
-    log.info("trained %s in %.0f s: held-out hole-seeking error %.2f mm -> %s",
-             method.name, final["train_seconds"], final["val_hole_mm"], models_dir / f"{method.name}.pt")
+    job = TrainingJob(cfg, settings, model_s, tracking, runtime, method, device, safety, sampling, data, models_dir,
+                      job_dir)
+    trained = [train_seed(job, settings.seed + k) for k in range(settings.seeds)]
+    chosen = min(trained, key=lambda t: (t.final["val_hole_mm"], t.seed))
+    final = publish_chosen(trained, chosen, models_dir, method.name)
+    if job.register and chosen.model_uri:
+        register_network(chosen.model_uri, f"{tracking.experiment}-{method.name}")
+    log.info("trained %s (%s): held-out hole-seeking error %s; seed %d kept -> %s", method.name,
+             f"{len(trained)} seeds" if len(trained) > 1 else f"seed {chosen.seed}",
+             ", ".join(f"{t.final['val_hole_mm']:.2f} mm" for t in trained), chosen.seed,
+             models_dir / f"{method.name}.pt")
     if study is not None and method.name in study.hole_mm:
         collisions = study.collision_pct.get(method.name)
         log.info("the full study's %s (the README's first command) reaches %.2f mm on its five test groups%s",
@@ -160,32 +144,181 @@ def run(cfg: DictConfig) -> dict:
     return {"checkpoint": str(models_dir / f"{method.name}.pt"), **final}
 
 
-def _digest_config(run_cfg: dict, device: str) -> dict:
-    return {**{k: v for k, v in run_cfg.items() if k not in NOT_IN_DIGEST}, "device": device}
+@dataclass(frozen=True)
+class TrainingJob:
+    """What every seed of one method's training shares: the settings, the boom, the data, where it writes."""
+
+    cfg: DictConfig
+    settings: TrainSettings
+    model_s: ModelSettings
+    tracking: TrackingSettings
+    runtime: RuntimeSettings
+    method: MethodSettings
+    device: torch.device
+    safety: object
+    sampling: object
+    data: object
+    models_dir: Path
+    job_dir: Path | None
+
+    @property
+    def seeds_dir(self) -> Path:
+        return self.models_dir / f"{self.method.name}_seeds"
+
+    @property
+    def register(self) -> bool:
+        return self.tracking.register_models and self.job_dir is None  # a sweep's variants stay in their runs
 
 
-def save_outputs(model: IKNet, history: list[dict], final: dict, models_dir: Path, run_dir: Path, name: str,
-                 boom_cfg: dict, run_cfg: dict, mlrun: StageRun, registered_name: str | None, log_model: bool,
-                 example, inputs: dict) -> None:
-    """Checkpoint, history and summary into the training's private folder, logged from there, then
-    published; the folder (with its resume state) is removed once they are in place."""
+@dataclass(frozen=True)
+class TrainedSeed:
+    seed: int
+    stem: str            # its files: <stem>.pt, <stem>_history.csv, <stem>_final.json
+    run_dir: Path        # the training's private folder; the files wait in its done/ until published
+    final: dict
+    model_uri: str | None  # the network as logged to MLflow (registered once the seeds are compared)
+
+    @property
+    def files(self) -> list[Path]:
+        return [self.run_dir / DONE_DIR / f"{self.stem}{suffix}" for suffix in OUTPUT_SUFFIXES]
+
+
+def train_seed(job: TrainingJob, seed: int) -> TrainedSeed:
+    """One seed's training, resumable, logged to its own MLflow run, published into the seeds folder."""
+    cfg, settings, method, data, safety = job.cfg, job.settings, job.method, job.data, job.safety
+    train_safety = safety.with_distances(SafetyDistances.from_config(method.train_safety))
+    steps = method.steps(settings.steps)
+    dtype = training_dtype(settings.precision, job.device)
+    precision = "float32" if dtype is None else str(dtype).removeprefix("torch.")
+    with torch.random.fork_rng(devices=[]):  # seeded initial weights without touching the global generator
+        torch.manual_seed(seed)
+        model = build_model(safety.boom, data.pose.mean(0), data.pose.std(0), job.model_s.width, job.model_s.depth,
+                            job.model_s.activation).to(job.device)
+    params = as_dict(cfg)
+    params["train"] = {**params["train"], "seed": seed}  # this seed's training, whatever train.seeds is
+    run_cfg = {"method": as_dict(OmegaConf.select(cfg, settings.method_key)), **select_params(params, PARAM_KEYS)}
+    if safety.tunnel.kind == "profile":  # the drift the penalties keep from is the file's content, not its name
+        run_cfg["tunnel_profile_md5"] = safety.tunnel.md5
+    digest = training_digest(_digest_config(run_cfg, str(job.device), precision),
+                             [path for path, _ in data.files.values()])
+    stem = f"{method.name}_seed{seed}"
+    # private to this training (config, data, code), beside the seeds folder: DVC empties that folder before a
+    # rerun, and the resume state must outlive it; a finished seed waits in its done/ until every seed is
+    run_dir = job.models_dir / f".{stem}.run-{digest[:12]}"
+    done = run_dir / DONE_DIR
+    if job.runtime.resume and (done / f"{stem}_final.json").is_file():
+        log.info("train %s seed %d: finished before this run (%s), not trained again", method.name, seed, done)
+        return _trained(seed, stem, run_dir)
+    resume = load_training_state(run_dir / RESUME_FILE, digest) if job.runtime.resume else None
+    tags = {"stage": "train", "method": method.name, "seed": str(seed), "train.digest": digest, **sweep.child_tags()}
+    run_name = f"train-{method.name}" + (f"-seed{seed}" if settings.seeds > 1 else "")
+    with stage_run(job.tracking, run_name, tags, system_metrics=True,
+                   resume_run_id=resume and resume.get("mlflow_run_id")) as mlrun:
+        sweep.record_job_run(mlrun.run_id)
+        mlrun.log_params({**run_cfg, "steps_trained": steps, "precision_trained": precision})
+        inputs = {context: mlrun.log_dataset(df, path, context) for context, (path, df) in data.files.items()}
+        inputs["validation"] = mlrun.log_frame_dataset(
+            pd.DataFrame(data.val_pose.numpy(), columns=POSE_COLUMNS), f"held-out holes (val_seed={settings.val_seed})",
+            "validation")
+        if resume is not None:
+            mlrun.set_tags({"resumed_at_step": str(resume["step"])})
+            log.info("train %s seed %d: resuming at step %d of %d from %s", method.name, seed, resume["step"], steps,
+                     run_dir / RESUME_FILE)
+
+        def save_state(state: dict) -> None:
+            save_training_state(run_dir / RESUME_FILE, state, digest, {"mlflow_run_id": mlrun.run_id})
+            mlrun.log_artifact(run_dir / RESUME_FILE, "checkpoints")
+
+        t0 = time.perf_counter()
+        seed_settings = TrainSettings(**{**vars(settings), "seed": seed})
+        history = fit(model, safety.boom, train_safety, method.objective,
+                      training_batches(data, method.objective, seed_settings, safety, job.sampling, job.device),
+                      steps, settings.lr, data.val_pose.float().to(job.device), settings.eval_every,
+                      settings.grad_clip, progress=job.runtime.progress, keep_best=settings.keep_best,
+                      on_eval=lambda step, rec, elapsed: log_training_progress(
+                          mlrun, step, steps, rec, elapsed, method.name, echo=not job.runtime.progress),
+                      checkpoints=Checkpoints(save_state, job.runtime.checkpoint_every, resume), hidden_dtype=dtype)
+        model = model.cpu()
+        train_s = time.perf_counter() - t0 + (resume["elapsed_s"] if resume else 0.0)
+        final = final_metrics(model, data.val_pose.float(), lambda p, q: summarize(solution_table(p, q, safety)),
+                              history, train_s)
+        save_outputs(model, history, final, run_dir, method.name, stem, as_dict(cfg.boom), run_cfg, mlrun,
+                     job.runtime.log_model, data.val_pose[:4].float().numpy(), inputs,
+                     {"precision": precision, "seed": seed})
+    log.info("trained %s seed %d in %.0f s: held-out hole-seeking error %.2f mm", method.name, seed,
+             final["train_seconds"], final["val_hole_mm"])
+    return _trained(seed, stem, run_dir)
+
+
+def _trained(seed: int, stem: str, run_dir: Path) -> TrainedSeed:
+    done = run_dir / DONE_DIR
+    uri = done / LOGGED_MODEL_FILE
+    return TrainedSeed(seed, stem, run_dir, json.loads((done / f"{stem}_final.json").read_text()),
+                       uri.read_text().strip() if uri.is_file() else None)
+
+
+def publish_chosen(trained: list[TrainedSeed], chosen: TrainedSeed, models_dir: Path, name: str) -> dict:
+    """Every seed's files as ``<name>_seeds/`` and the chosen seed's as ``<name>.pt`` / ``_history.csv`` /
+    ``_final.json`` (its summary plus every seed's held-out figures, their mean and sample std), published
+    together under one lock: the folder and the chosen set always come from one training, even beside another.
+    The seeds' private folders go once they are in place."""
+    figures = ("val_hole_mm", "val_hole_mm_p95", "val_collision_rate", "val_any_violation_share", "train_seconds")
+    per_seed = {k: [t.final[k] for t in trained] for k in figures}
+    spread = {}
+    for k, values in per_seed.items():
+        spread[f"{k}_seed_mean"] = statistics.fmean(values)
+        spread[f"{k}_seed_std"] = statistics.stdev(values) if len(values) > 1 else 0.0
+    final = {**chosen.final, "seeds": [t.seed for t in trained], **{f"{k}_by_seed": v for k, v in per_seed.items()},
+             **spread}
+    staging = Path(tempfile.mkdtemp(prefix=f".{name}.{process_token()}.", suffix=".tmp", dir=models_dir))
+    try:
+        seeds_new = staging / f"{name}_seeds"
+        seeds_new.mkdir()
+        for t in trained:
+            for f in t.files:
+                shutil.copyfile(f, seeds_new / f.name)
+        top = dict(zip(chosen.files, (staging / f"{name}{suffix}" for suffix in OUTPUT_SUFFIXES), strict=True))
+        for src, dst in top.items():
+            if dst.suffix != ".json":
+                shutil.copyfile(src, dst)
+        write_json({**final, "method": name}, staging / f"{name}_final.json")
+        publish({dst: models_dir / dst.name for dst in top.values()}, publish_lock(models_dir, name),
+                folders={seeds_new: models_dir / seeds_new.name})
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    for t in trained:
+        shutil.rmtree(t.run_dir, ignore_errors=True)
+    return final
+
+
+def _digest_config(run_cfg: dict, device: str, precision: str) -> dict:
+    return {**{k: v for k, v in run_cfg.items() if k not in NOT_IN_DIGEST}, "device": device, "precision": precision}
+
+
+def save_outputs(model: IKNet, history: list[dict], final: dict, run_dir: Path, name: str, stem: str,
+                 boom_cfg: dict, run_cfg: dict, mlrun: StageRun, log_model: bool, example, inputs: dict,
+                 facts: dict | None = None) -> None:
+    """Checkpoint, history and summary written in the training's private folder and logged from there, then
+    renamed to its ``done/`` (with the logged model's URI) and the resume state removed: a finished seed that
+    waits there for the others is not trained again."""
     run_dir.mkdir(parents=True, exist_ok=True)
     out = Path(tempfile.mkdtemp(prefix="out-", dir=run_dir))  # this process's own, even beside a twin training
-    files = {out / f: models_dir / f for f in (f"{name}.pt", f"{name}_history.csv", f"{name}_final.json")}
-    ckpt, hist, summary = files
+    ckpt, hist, summary = (out / f"{stem}{suffix}" for suffix in OUTPUT_SUFFIXES)
     save_checkpoint(ckpt, model, boom_cfg, {"method": name, "history": history, "final": final,
-                                            "config": run_cfg, "mlflow_run_id": mlrun.run_id})
+                                            "config": run_cfg, "mlflow_run_id": mlrun.run_id, **(facts or {})})
     hist_df = pd.DataFrame(history)
     write_csv(hist_df, hist)
-    write_json({"method": name, "overrides": sweep.job_overrides(), **final}, summary)
+    write_json({"method": name, "overrides": sweep.job_overrides(), **(facts or {}), **final}, summary)
     if mlrun.active:
         from pipeline.evaluation.plots import training_curves
 
         mlrun.log_figure(training_curves({name: hist_df}), f"figures/training_{name}.png")
         kept = int(final["kept_step"])
-        info = mlrun.log_network(model, example, ckpt, name=name, step=kept,
-                                 registered_name=registered_name) if log_model else None
+        # registered (if at all) once the seeds are compared: the registry's newest is the network the stages use
+        info = mlrun.log_network(model, example, ckpt, name=name, step=kept) if log_model else None
         model_id = info.model_id if info is not None else None
+        if info is not None:
+            (out / LOGGED_MODEL_FILE).write_text(info.model_uri)
         # after the curves, linked to the model: held-out values on the held-out holes, the kept step's
         # loss on the training data (the model page lists both datasets), the rest on their own
         kept_rec = next((r for r in history if r.get("kept")), history[-1])
@@ -194,8 +327,10 @@ def save_outputs(model: IKNet, history: list[dict], final: dict, models_dir: Pat
         mlrun.log_summary({"loss": kept_rec["loss"]}, kept, model_id, inputs.get("training"))
         mlrun.log_summary({k: v for k, v in final.items() if not k.startswith("val_")}, kept, model_id)
         mlrun.log_artifact(ckpt)
-    publish(files, publish_lock(models_dir, name))
-    shutil.rmtree(run_dir, ignore_errors=True)
+    done = run_dir / DONE_DIR
+    shutil.rmtree(done, ignore_errors=True)  # a twin training's, of the same digest: the same weights
+    os.replace(out, done)
+    (run_dir / RESUME_FILE).unlink(missing_ok=True)
 
 
 @stage_main

@@ -260,7 +260,7 @@ def test_a_study_in_a_profile_drift_draws_its_holes_there_and_trains(tmp_path, m
     from pipeline import generate, train
     from pipeline.data.hole_sets import read_hole_poses
 
-    over = ["tunnel=profile", f"tunnel.file={PROFILES / 'box_5.5x4.5.csv'}", "train.steps=60"]
+    over = ["tunnel=profile", f"tunnel.file={PROFILES / 'box_5.5x4.5.csv'}", "train.steps=60", "train.seeds=1"]
     generate.run(make_cfg(tmp_path, *over))
     profile = Profile.from_file(PROFILES / "box_5.5x4.5.csv")
     holes = tmp_path / "data" / "holes"

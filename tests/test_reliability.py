@@ -32,7 +32,7 @@ from pipeline.learning.models import load_checkpoint
 from pipeline.tracking.runs import TrackingSettings, round_metric, stage_run
 
 # the runs' bookkeeping is under test here, not what they learn: a few small steps, no MLflow model
-SHORT = ["train.steps=20", "train.eval_every=10", "train.batch_size=64", "runtime.log_model=false"]
+SHORT = ["train.steps=20", "train.eval_every=10", "train.batch_size=64", "train.seeds=1", "runtime.log_model=false"]
 
 
 def _env():
@@ -87,24 +87,31 @@ def _fresh(tmp_path, holes) -> Path:
 @pytest.mark.slow
 def test_concurrent_trainings_each_log_their_own_model(tmp_path, holes):
     tmp = _fresh(tmp_path, holes)
-    procs = [subprocess.Popen(_cli(tmp, f"train.seed={seed}", "train.steps=60"), env=_env(), cwd=PROJECT_ROOT,
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for seed in (11, 21)]
+    # two seeds each (11, 12 and 21, 22): the seeds folder and the chosen set are published together
+    procs = [subprocess.Popen(_cli(tmp, f"train.seed={seed}", "train.seeds=2", "train.steps=60"), env=_env(),
+                              cwd=PROJECT_ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+             for seed in (11, 21)]
     for p in procs:
         out, _ = p.communicate(timeout=600)
         assert p.returncode == 0, out
     client, runs = _client(tmp)
-    assert len(runs) == 2
+    assert len(runs) == 4
     for run in runs:
-        local = client.download_artifacts(run.info.run_id, "cuikm.pt", str(tmp / run.info.run_id))
+        seed = run.data.tags["seed"]
+        local = client.download_artifacts(run.info.run_id, f"cuikm_seed{seed}.pt", str(tmp / run.info.run_id))
         _, meta = load_checkpoint(local)
-        assert meta["mlflow_run_id"] == run.info.run_id
-        assert str(meta["config"]["train"]["seed"]) == run.data.params["train.seed"]
+        assert meta["mlflow_run_id"] == run.info.run_id and str(meta["seed"]) == seed
+        assert str(meta["config"]["train"]["seed"]) == run.data.params["train.seed"] == seed
         assert round_metric(meta["final"]["val_hole_mm"]) == run.data.metrics["summary/val_hole_mm"]
-    # the published trio belongs to one run
-    _, meta = load_checkpoint(tmp / "data" / "models" / "cuikm.pt")
-    final = json.loads((tmp / "data" / "models" / "cuikm_final.json").read_text())
-    assert final["val_hole_mm"] == meta["final"]["val_hole_mm"]
-    assert not list((tmp / "data" / "models").glob(".cuikm.run-*"))  # private folders removed
+    # the published set belongs to one training: its chosen network, its summary and its seeds folder
+    models = tmp / "data" / "models"
+    _, meta = load_checkpoint(models / "cuikm.pt")
+    final = json.loads((models / "cuikm_final.json").read_text())
+    assert final["val_hole_mm"] == meta["final"]["val_hole_mm"] and final["seed"] == meta["seed"]
+    in_folder = sorted(int(p.stem.removeprefix("cuikm_seed")) for p in (models / "cuikm_seeds").glob("*.pt"))
+    assert in_folder == final["seeds"] and in_folder in ([11, 12], [21, 22]) and meta["seed"] in in_folder
+    assert final["val_hole_mm"] == min(final["val_hole_mm_by_seed"])
+    assert not list(models.glob(".cuikm*"))  # private folders and staging removed
 
 
 # ---------------------------------------------------------------------------------------- defect 2

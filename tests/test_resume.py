@@ -22,7 +22,8 @@ from pipeline.learning.training import (
     training_digest,
 )
 
-STEPS = ("runtime.checkpoint_every=40",)  # tiny (as quick): 150 steps, held-out evaluations at 0, 50, 100, 149
+# tiny: 150 steps, held-out evaluations at 0, 50, 100, 149; one seed (the seeds' own resume: the last test)
+STEPS = ("runtime.checkpoint_every=40", "train.seeds=1")
 
 
 def _weights(path):
@@ -66,7 +67,7 @@ def test_sigterm_then_resume_gives_the_uninterrupted_weights(study, make_cfg, mo
     with pytest.raises(SystemExit) as stopped:
         train.run(make_cfg(tmp, *STEPS))
     assert stopped.value.code == 128 + signal.SIGTERM
-    states = list((tmp / "data" / "models").glob(".cuikm.run-*/resume.pt"))
+    states = list((tmp / "data" / "models").glob(".cuikm_seed0.run-*/resume.pt"))
     assert len(states) == 1
     state = torch.load(states[0], weights_only=True)  # plain data: loads without running code
     assert state["step"] == 51 and [r["step"] for r in state["history"]] == [0, 50]
@@ -78,7 +79,7 @@ def test_sigterm_then_resume_gives_the_uninterrupted_weights(study, make_cfg, mo
     monkeypatch.undo()
     train.run(make_cfg(tmp, *STEPS, "runtime.progress=true"))  # how it runs may change (outside the digest)
     assert _same(_weights(tmp / "data" / "models" / "cuikm.pt"), reference)
-    assert not list((tmp / "data" / "models").glob(".cuikm.run-*"))  # the private folder goes once published
+    assert not list((tmp / "data" / "models").glob(".cuikm_seed0.run-*"))  # the private folder goes once published
     client, runs = _runs(tmp)
     resumed = client.get_run(killed.info.run_id)  # the same run, continued
     assert len(runs) == 2 and resumed.info.status == "FINISHED"
@@ -98,7 +99,7 @@ def test_a_crash_resumes_from_the_last_periodic_state(study, make_cfg, monkeypat
     _stop_at(monkeypatch, 100, crash)
     with pytest.raises(RuntimeError, match="simulated crash"):
         train.run(make_cfg(tmp, *STEPS))
-    (state_file,) = (tmp / "data" / "models").glob(".cuikm.run-*/resume.pt")
+    (state_file,) = (tmp / "data" / "models").glob(".cuikm_seed0.run-*/resume.pt")
     assert torch.load(state_file, weights_only=True)["step"] == 80  # every 40 steps: 40, 80
     monkeypatch.undo()
     train.run(make_cfg(tmp, *STEPS))
@@ -112,7 +113,7 @@ def test_another_config_does_not_resume_and_resume_false_starts_over(study, make
     with pytest.raises(SystemExit):
         train.run(make_cfg(tmp, *STEPS, "train.lr=2e-3"))
     monkeypatch.undo()
-    (other,) = (tmp / "data" / "models").glob(".cuikm.run-*")
+    (other,) = (tmp / "data" / "models").glob(".cuikm_seed0.run-*")
     train.run(make_cfg(tmp, *STEPS))  # the reference settings: the lr=2e-3 state is not theirs
     assert _same(_weights(tmp / "data" / "models" / "cuikm.pt"), reference)
     assert other.is_dir()
@@ -194,3 +195,37 @@ def test_the_digest_follows_config_and_data(tmp_path):
     assert training_digest({"train": {"lr": 2e-3}}, [f]) != base
     f.write_bytes(b"b")
     assert training_digest({"train": {"lr": 1e-3}}, [f]) != base
+
+
+@pytest.mark.slow
+def test_a_finished_seed_waits_for_the_others_and_is_not_trained_again(study, make_cfg, monkeypatch):
+    """Two seeds, SIGTERM in the second: the first, finished, waits in its private folder (nothing published
+    yet); the rerun trains only the second, from its state, and publishes both with the uninterrupted weights."""
+    tmp, _, _ = study
+    two = ("runtime.checkpoint_every=40", "train.seeds=2", "train.seed=40")
+    train.run(make_cfg(tmp, *two))
+    models = tmp / "data" / "models"
+    reference = {s: _weights(models / "cuikm_seeds" / f"cuikm_seed{s}.pt") for s in (40, 41)}
+    original, seen = train.log_training_progress, []
+
+    def hook(run, s, *args, **kwargs):
+        original(run, s, *args, **kwargs)
+        seen.append(s)
+        if s == 50 and seen.count(50) == 2:  # the second seed's evaluation at step 50
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(train, "log_training_progress", hook)
+    (models / "cuikm_seeds").rename(models / "earlier_seeds")  # so that publishing is seen
+    with pytest.raises(SystemExit):
+        train.run(make_cfg(tmp, *two))
+    assert not (models / "cuikm_seeds").exists()
+    assert len(list(models.glob(".cuikm_seed40.run-*/done/cuikm_seed40.pt"))) == 1
+    assert len(list(models.glob(".cuikm_seed41.run-*/resume.pt"))) == 1
+    monkeypatch.undo()
+    client, before = _runs(tmp)
+    train.run(make_cfg(tmp, *two))
+    client, after = _runs(tmp)
+    assert len(after) == len(before)  # seed 40 not trained again, seed 41 continued in its own run
+    for s in (40, 41):
+        assert _same(_weights(models / "cuikm_seeds" / f"cuikm_seed{s}.pt"), reference[s])
+    assert not list(models.glob(".cuikm_seed4*"))

@@ -17,7 +17,7 @@ from pipeline.evaluation.pareto import pareto_front, summary_table
 from pipeline.params import composed_yaml
 
 # the sweeps' bookkeeping is under test, not what the jobs learn: a few steps, no MLflow model
-SHORT = ["experiment=tiny", "train.steps=20", "train.eval_every=10", "runtime.log_model=false"]
+SHORT = ["experiment=tiny", "train.steps=20", "train.eval_every=10", "train.seeds=1", "runtime.log_model=false"]
 
 
 def _env():
@@ -137,7 +137,8 @@ def test_dvc_repro_of_the_quick_experiment_then_up_to_date_and_a_param_change_re
     compose = [sys.executable, "-m", "pipeline.params", *SHORT, "round.routing=false", "schedule.baselines=false",
                "runtime.threads=1", "runtime.train_threads=1", "draws.count=20", "export.benchmark.compile=false",
                "export.benchmark.isolate=false", "round.sweep_more_bands_m=[]", "round.postures=1",
-               "solver_benchmark.methods=[cuikm,uikm,sikm,sikm_best,cuikm_start,hybrid,nm]"]
+               "solver_benchmark.methods=[cuikm,uikm,sikm,sikm_best,cuikm_start,hybrid,nm]",
+               "train.seeds=2"]  # the study's seeded path: <method>_seeds, each seed evaluated, the report's spread
     _run(compose, cwd=tmp_path)
     dvc = [sys.executable, "-m", "dvc"]
     _run([*dvc, "repro"], cwd=tmp_path, timeout=1500)  # a guard against a hang, not a speed test
@@ -147,6 +148,12 @@ def test_dvc_repro_of_the_quick_experiment_then_up_to_date_and_a_param_change_re
         assert (tmp_path / d / out).is_file(), out
     metrics = json.loads((tmp_path / d / "eval/metrics.json").read_text())
     assert set(metrics) == {"sikm", "sikm_best", "uikm", "cuikm"}
+    seeds = pd.read_csv(tmp_path / d / "report/seeds.csv")
+    assert list(seeds.columns) == ["method", "seed", "kept", "mean_mm", "collision_rate_pct"]
+    assert sorted(zip(seeds["method"], seeds["seed"], strict=True)) == sorted((m, k) for m in metrics for k in (0, 1))
+    assert all(metrics[m]["seeds"] == 2 for m in metrics) and seeds["kept"].sum() == 4
+    for m in metrics:
+        assert (tmp_path / d / "eval/predictions" / f"{m}_seed1_group5.parquet").is_file()
     outs = {p: (tmp_path / d / p).stat().st_mtime_ns for p in ["holes/meta.json", "models/sikm.pt", "models/uikm.pt",
                                                              "models/cuikm.pt", "eval/metrics.json",
                                                              "report/README.md"]}
@@ -192,10 +199,12 @@ def _check_dataset_digests_are_dvc_hashes(repo: Path, d: str) -> None:
     client = MlflowClient(f"sqlite:///{repo}/mlflow.db")
     exp = client.get_experiment_by_name("boom-ik-tiny")
     assert exp.tags["mlflow.experimentKind"] == "custom_model_development"
-    (uikm,) = client.search_runs([exp.experiment_id], "tags.method = 'uikm'")
-    logged = {i.dataset.name: i.dataset.digest for i in uikm.inputs.dataset_inputs}
-    assert logged["train.parquet"] == dvc_md5["train.parquet"]  # the training table: the version DVC records
-    assert set(logged) == {"train.parquet", "held-out holes (val_seed=999)"}  # and the held-out holes it scored
+    uikm = client.search_runs([exp.experiment_id], "tags.method = 'uikm'")
+    assert sorted(r.data.tags["seed"] for r in uikm) == ["0", "1"]
+    for run in uikm:
+        logged = {i.dataset.name: i.dataset.digest for i in run.inputs.dataset_inputs}
+        assert logged["train.parquet"] == dvc_md5["train.parquet"]  # the training table: the version DVC records
+        assert set(logged) == {"train.parquet", "held-out holes (val_seed=999)"}  # and the held-out holes it scored
 
 
 @pytest.mark.slow

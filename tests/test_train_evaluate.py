@@ -68,9 +68,9 @@ def test_mlflow_holds_the_runs(study, make_cfg):
     exp = client.get_experiment_by_name("boom-ik-tiny")
     runs = client.search_runs([exp.experiment_id])
     by_name = {r.info.run_name: r for r in runs}
-    assert {"train-sikm", "train-uikm", "train-cuikm", "evaluate"} <= set(by_name)
-    for m in METHODS:
-        run = by_name[f"train-{m}"]
+    assert {f"train-{m}-seed{k}" for m in METHODS for k in (0, 1)} | {"evaluate"} <= set(by_name)  # tiny: 2 seeds
+    for m, seed in [(m, k) for m in METHODS for k in (0, 1)]:
+        run = by_name[f"train-{m}-seed{seed}"]
         assert run.info.status == "FINISHED"
         assert run.data.params["method.name"] == m and run.data.params["model.width"] == str(cfg.model.width)
         assert run.data.params["safety.wall"] == "0.5"
@@ -78,13 +78,14 @@ def test_mlflow_holds_the_runs(study, make_cfg):
         assert not [k for k in run.data.params if k.split(".")[0] in ("benchmark", "eval", "baselines", "calibration",
                                                                        "solve", "export", "tracking", "paths")]
         assert run.data.params["train.lr"] == "0.001" and run.data.params["train.steps"] == "150"
-        final = json.loads((tmp / "data" / "models" / f"{m}_final.json").read_text())
+        final = json.loads((tmp / "data" / "models" / f"{m}_seeds" / f"{m}_seed{seed}_final.json").read_text())
+        assert run.data.tags["seed"] == str(seed) == run.data.params["train.seed"]
         assert run.data.metrics["summary/val_hole_mm"] == float(f"{final['val_hole_mm']:.4g}")
         assert run.data.metrics["summary/kept_step"] == final["kept_step"]
         steps = [x.step for x in client.get_metric_history(run.info.run_id, "val_hole_mm")]
         assert steps == [0, 50, 100, 149]
         artifacts = {a.path for a in client.list_artifacts(run.info.run_id)}
-        assert {"figures", f"{m}.pt"} <= artifacts
+        assert {"figures", f"{m}_seed{seed}.pt"} <= artifacts
         assert run.outputs.model_outputs or client.search_logged_models([exp.experiment_id])
     ev = by_name["evaluate"]
     assert math.isfinite(ev.data.metrics["cuikm.hole_mm_mean"])
@@ -186,9 +187,9 @@ def test_steps_between_evaluations_skip_the_logged_terms_and_train_the_same_to_t
         model = build_model(boom, src.mean(0), src.std(0), 32, 2, "gelu")
         batches = dataset_batches(src, q_sup.float() if supervised else None, 64, 4)
 
-        def terms(*args, logged=True):
+        def terms(*args, logged=True, **kwargs):
             asked.append(logged)
-            return full(*args, logged=logged or every_term)
+            return full(*args, logged=logged or every_term, **kwargs)
 
         monkeypatch.setattr(training, "loss_terms", terms)
         history = training.fit(model, boom, safety, objective, batches, 12, 1e-2, src[:32], eval_every=5,

@@ -108,24 +108,40 @@ def same_file(a: Path, b: Path) -> bool:
         return False
 
 
-def publish(files: dict[Path, Path], lock: Path, remove: Iterable[Path] = ()) -> None:
+def publish(files: dict[Path, Path], lock: Path, remove: Iterable[Path] = (), folders: dict[Path, Path] | None = None
+            ) -> None:
     """Move finished files onto their destinations, each with one atomic rename, all under one
     file lock: a set written together (a checkpoint, its history, its summary) is replaced together,
     and a concurrent writer's set never interleaves with it. ``remove``: files of an earlier set that
-    this set has no counterpart for (they would be read as part of it), deleted under the same lock."""
+    this set has no counterpart for (they would be read as part of it), deleted under the same lock.
+    ``folders``: finished folders that replace their destinations whole (the earlier folder is renamed
+    aside first and deleted after), under the same lock, before the files."""
     from filelock import FileLock
 
+    folders = folders or {}
     lock.parent.mkdir(parents=True, exist_ok=True)
     in_the_way = [str(dst) for dst in files.values() if Path(dst).is_dir() and not Path(dst).is_symlink()]
+    in_the_way += [str(dst) for dst in folders.values() if Path(dst).exists() and not Path(dst).is_dir()]
     if in_the_way:  # checked before the first rename: a set is published whole or not at all
-        raise InputError(f"cannot publish: {', '.join(in_the_way)} is a folder; the set needs that name")
+        raise InputError(f"cannot publish: {', '.join(in_the_way)} is in the way; the set needs that name")
     raise_if_terminated()  # a signal whose exception a library swallowed (a native solver's callback) stops it here
     with FileLock(str(lock), timeout=600):
+        aside = []
+        for src, dst in folders.items():
+            dst = Path(dst)
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            if dst.is_dir():
+                old = dst.with_name(f".{dst.name}.{process_token()}.old.tmp")  # a stale temp if killed here
+                os.replace(dst, old)
+                aside.append(old)
+            os.replace(src, dst)
         for src, dst in files.items():
             Path(dst).parent.mkdir(parents=True, exist_ok=True)
             os.replace(src, dst)
         for old in remove:
             Path(old).unlink(missing_ok=True)
+        for old in aside:
+            shutil.rmtree(old, ignore_errors=True)
 
 
 def publish_lock(folder: Path, name: str) -> Path:

@@ -101,7 +101,7 @@ class MethodEvaluation:
 
 @torch.no_grad()
 def evaluate_network(model, meta: dict, safety: SafetyModel, groups: dict, repeats: int) -> MethodEvaluation:
-    """Solve every test group in one forward pass each; score in float64."""
+    """Solve every test group in one forward pass each; score in float64. ``repeats = 0``: no timing."""
     tables, predictions = {}, {}
     for k, (df, pose) in groups.items():
         q = model(pose.float()).double()
@@ -110,6 +110,6 @@ def evaluate_network(model, meta: dict, safety: SafetyModel, groups: dict, repea
                                     joints_frame(q, safety.boom.joint_names)], axis=1)
     all_pose = torch.cat([pose for _, pose in groups.values()])
     metrics = {**summarize(pd.concat(tables.values(), ignore_index=True)),
-               "solve_ms_per_1000": solve_time_per_1000(model, all_pose, repeats),
+               **({"solve_ms_per_1000": solve_time_per_1000(model, all_pose, repeats)} if repeats > 0 else {}),
                "per_group_hole_mm_mean": {k: float(t["hole_mm"].mean()) for k, t in tables.items()}}
     return MethodEvaluation(tables, predictions, metrics, pd.DataFrame(meta.get("history", [])))

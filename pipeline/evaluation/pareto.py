@@ -24,17 +24,17 @@ def pareto_front(error: np.ndarray, rate: np.ndarray) -> np.ndarray:
 
 
 def summary_table(runs: pd.DataFrame) -> pd.DataFrame:
-    """One row per child run: its overrides, final metrics and whether it is on the Pareto front
-    (among the jobs that finished)."""
-    cols = {"run_id": "run_id", "tags.sweep.overrides": "overrides", "status": "status"}
-    df = runs.rename(columns=cols).reindex(columns=list(cols.values())).copy()
+    """One row per child run (a job trains ``train.seeds`` networks, a run each): its overrides, seed, final
+    metrics and whether it is on the Pareto front (among the runs that finished)."""
+    cols = {"run_id": "run_id", "tags.sweep.overrides": "overrides", "tags.seed": "seed", "status": "status"}
+    df = runs.rename(columns=cols).reindex(columns=list(cols.values())).copy()  # seed: a job trains train.seeds
     for m in SUMMARY_METRICS:
         df[m.removeprefix("summary/")] = runs[f"metrics.{m}"] if f"metrics.{m}" in runs else np.nan
     # Label each job by what it changes: drop the overrides every job of the sweep shares.
     tokens = [str(o).split() for o in df["overrides"].fillna("")]
     common = set.intersection(*map(set, tokens)) if len(tokens) > 1 else set()
     df["overrides"] = [" ".join(t for t in toks if t not in common) for toks in tokens]
-    df = df.sort_values("overrides", kind="stable").reset_index(drop=True)
+    df = df.sort_values(["overrides", "seed"], kind="stable").reset_index(drop=True)
     ok = (df["status"] == "FINISHED") & df["val_hole_mm"].notna() & df["val_collision_rate"].notna()
     df["pareto"] = False
     if ok.any():

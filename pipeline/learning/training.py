@@ -61,6 +61,23 @@ Batches = Iterator[tuple[torch.Tensor, torch.Tensor | None]]
 MAX_STEPS = 10_000_000
 MAX_BATCH = 65_536
 MAX_VAL = 1_000_000
+PRECISIONS = ("auto", "float32", "bfloat16")
+MAX_SEEDS = 100
+
+
+def training_dtype(precision: str, device) -> torch.dtype | None:
+    """The dtype of the hidden layers' products for ``train.precision`` on ``device`` (None: float32)."""
+    if precision == "float32":
+        return None
+    if precision == "bfloat16":
+        return torch.bfloat16
+    kind = torch.device(device).type
+    if kind == "cuda":
+        return torch.bfloat16 if torch.cuda.is_bf16_supported() else None
+    if kind == "cpu":  # emulated bf16 on other CPUs is slower than float32
+        native = torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported()
+        return torch.bfloat16 if native else None
+    return None
 
 
 @dataclass(frozen=True)
@@ -71,6 +88,7 @@ class TrainSettings:
     batch_size: int = field(metadata=rule(ge=1, le=MAX_BATCH))
     lr: float = field(metadata=rule(gt=0))
     seed: int = field(default=0, metadata=rule(ge=0, le=SEED_MAX))
+    seeds: int = field(default=3, metadata=rule(ge=1, le=MAX_SEEDS))  # trainings per method: seed, seed + 1, ...
     fresh_holes: bool = True
     eval_every: int = field(default=250, metadata=rule(ge=1, le=MAX_STEPS))
     val_size: int = field(default=1000, metadata=rule(ge=1, le=MAX_VAL))
@@ -78,6 +96,9 @@ class TrainSettings:
     grad_clip: float | None = field(default=None, metadata=rule(gt=0))
     method_key: str = "method"
     keep_best: bool = True  # end with the weights of the best held-out evaluation, not the last step's
+    # the hidden layers' products while training (IKNet.unit_joints): auto is bfloat16 where the device has it
+    # natively (a CPU with AVX-512 BF16 or AMX, a CUDA GPU with bf16), else float32; evaluation is float32 always
+    precision: str = field(default="auto", metadata=rule(choices=PRECISIONS))
 
     @classmethod
     def from_config(cls, node: Mapping) -> TrainSettings:
@@ -138,6 +159,7 @@ def loss_terms(
     pose: torch.Tensor,
     q_target: torch.Tensor | None = None,
     logged: bool = True,
+    hidden_dtype: torch.dtype | None = None,
 ) -> dict[str, torch.Tensor]:
     """Every loss term of a batch; ``loss`` is the one optimised, the rest are for logging.
 
@@ -145,7 +167,7 @@ def loss_terms(
     steps alone, so the steps between skip the others: the supervised rows' forward kinematics and
     clearances, UIKM's clearances (``mu = 0``). The loss and its gradients are the same to the bit
     (tests/test_train_evaluate.py), and a supervised step is about a tenth cheaper."""
-    unit = model.unit_joints(pose)
+    unit = model.unit_joints(pose, hidden_dtype)
     q = model.lower + model.span * unit
     terms: dict[str, torch.Tensor] = {}
     pos_needed, safety_needed = logged or not objective.supervised, logged or objective.mu > 0
@@ -291,6 +313,8 @@ def fit(
     progress: bool = True,
     keep_best: bool = False,
     checkpoints: Checkpoints | None = None,
+    hidden_dtype: torch.dtype | None = None,
+    fused_adam: bool = True,
 ) -> list[dict[str, float]]:
     """Adam with the linearly annealed learning rate of eq. 8; returns the logged history.
 
@@ -300,8 +324,11 @@ def fit(
     stopping on held-out holes, never on the test groups); the history marks that step.
     ``checkpoints``: save the state on a schedule and on SIGTERM / SIGINT (then raise as the signal
     would), and start from ``checkpoints.resume`` if given; ``batches`` must then have ``state()`` and
-    ``load_state()`` (the batch sources of this module do)."""
-    opt = torch.optim.Adam(model.parameters(), lr=lr)
+    ``load_state()`` (the batch sources of this module do). ``hidden_dtype``: the hidden layers' products
+    in that dtype while training (:func:`training_dtype`); the held-out evaluations stay float32. ``fused_adam``:
+    Adam's update as one kernel (CPU and CUDA; the same arithmetic as its loop over tensors, in fewer passes)."""
+    fused = fused_adam and next(model.parameters()).device.type in ("cpu", "cuda")
+    opt = torch.optim.Adam(model.parameters(), lr=lr, fused=fused)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda t: max(0.0, 1.0 - t / steps))
     history: list[dict[str, float]] = []
     best = {"mm": math.inf, "step": None, "state": None}
@@ -323,7 +350,7 @@ def fit(
             raise_if_terminated()  # SIGTERM stops training at a step boundary even if its exception was swallowed
             pose, q = next(batches)
             logged = step % eval_every == 0 or step == steps - 1
-            terms = loss_terms(model, boom, safety, objective, pose, q, logged=logged)
+            terms = loss_terms(model, boom, safety, objective, pose, q, logged=logged, hidden_dtype=hidden_dtype)
             if not torch.isfinite(terms["loss"]):
                 raise Diverged(f"training diverged: loss = {float(terms['loss'].detach())} at step {step} "
                                f"(terms {_finite_report(terms)}); check the data and train.lr = {lr}")

@@ -540,3 +540,13 @@ def log_training_progress(run: StageRun, step: int, steps: int, record: Mapping[
         log.info("train %s: step %d/%d (%.0f %%), loss %.4g, held-out %.2f mm, %.0f s elapsed, ~%.0f s left",
                  method, step + 1, steps, 100 * done, record.get("loss", math.nan), record.get("val_hole_mm", math.nan),
                  elapsed, left)
+
+
+def register_network(model_uri: str, registered_name: str, alias: str = "newest") -> None:
+    """Register a network logged by :meth:`StageRun.log_network` (``models:/<model id>``) as a new version of
+    ``registered_name`` and move ``alias`` to it: done once a training's seeds are compared, for the one kept."""
+    import mlflow
+    from mlflow.tracking import MlflowClient
+
+    version = mlflow.register_model(model_uri, registered_name)
+    MlflowClient().set_registered_model_alias(registered_name, alias, str(version.version))

@@ -91,8 +91,8 @@ def runs_from_job_files(folder: Path) -> pd.DataFrame:
     for path in sorted(folder.glob("*/*_final.json")):
         final = json.loads(path.read_text())
         rows.append({"run_id": path.parent.name, "tags.sweep.overrides": final.get("overrides", ""),
-                     "status": "FINISHED", **{f"metrics.summary/{k}": v for k, v in final.items()
-                                              if isinstance(v, (int, float))}})
+                     "tags.seed": final.get("seed"), "status": "FINISHED",
+                     **{f"metrics.summary/{k}": v for k, v in final.items() if isinstance(v, (int, float))}})
     for path in sorted(folder.glob(f"*/{JOB_FAILED_FILE}")):
         failed = json.loads(path.read_text())
         rows.append({"run_id": path.parent.name, "tags.sweep.overrides": failed.get("overrides", ""),
