@@ -105,7 +105,7 @@ def run(cfg: DictConfig) -> dict:
     """Train the configured method once per seed (``train.seeds`` of them, from ``train.seed`` up); returns the
     chosen network's final held-out metrics and its checkpoint path.
 
-    Each seed's network is ``<method>_seeds/seed<k>.pt`` (with its history and summary); the network the other
+    Each seed's network is ``<method>_seeds/<method>_seed<k>.pt`` (with its history and summary); the network the other
     stages read, ``<method>.pt``, is the seed with the best held-out hole-seeking error (held-out holes, never a
     test group; ties to the lower seed), and its summary adds every seed's figure with their mean and std."""
     settings, model_s, tracking = (TrainSettings.from_config(cfg.train), ModelSettings.from_config(cfg.model),

@@ -96,6 +96,27 @@ def test_publish_moves_nothing_when_one_destination_is_a_folder(tmp_path):
     a, b = tmp_path / "a.new", tmp_path / "b.new"
     a.write_text("a"), b.write_text("b")
     (tmp_path / "b").mkdir()
-    with pytest.raises(InputError, match="is a folder"):
+    with pytest.raises(InputError, match="b is in the way"):
         publish({a: tmp_path / "a", b: tmp_path / "b"}, tmp_path / ".lock")
     assert not (tmp_path / "a").exists() and a.exists()
+
+
+def test_publish_replaces_a_folder_whole_with_its_files(tmp_path):
+    """A set of files and a folder (a training's chosen network and its seeds folder): the old folder goes whole,
+    none of its files is left beside the new ones, and a file where the folder should be stops it all first."""
+    new, dst = tmp_path / "seeds.new", tmp_path / "seeds"
+    new.mkdir(), dst.mkdir()
+    (new / "s1.pt").write_text("new 1")
+    (dst / "s1.pt").write_text("old 1"), (dst / "s9.pt").write_text("old 9")
+    top = tmp_path / "net.new"
+    top.write_text("net")
+    publish({top: tmp_path / "net.pt"}, tmp_path / ".lock", folders={new: dst})
+    assert sorted(p.name for p in dst.iterdir()) == ["s1.pt"] and (dst / "s1.pt").read_text() == "new 1"
+    assert (tmp_path / "net.pt").read_text() == "net" and not new.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".lock", "net.pt", "seeds"]  # the old folder: gone
+    other, top = tmp_path / "other.new", tmp_path / "net2.new"
+    other.mkdir(), top.write_text("net 2")
+    (tmp_path / "blocked").write_text("a file")
+    with pytest.raises(InputError, match="blocked is in the way"):
+        publish({top: tmp_path / "net.pt"}, tmp_path / ".lock", folders={other: tmp_path / "blocked"})
+    assert (tmp_path / "net.pt").read_text() == "net" and other.is_dir() and top.exists()

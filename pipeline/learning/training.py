@@ -56,7 +56,7 @@ log = logging.getLogger(__name__)
 
 Batches = Iterator[tuple[torch.Tensor, torch.Tensor | None]]
 
-# Bounds (conf/train/default.yaml): 15 000 steps take about 16 min on 2 cores, so 10^7 is a week; a batch and the
+# Bounds (conf/train/default.yaml): 15 000 steps take 4-11 min on 2 cores, so 10^7 is days; a batch and the
 # held-out holes live in memory with their forward kinematics and safety terms
 MAX_STEPS = 10_000_000
 MAX_BATCH = 65_536
