@@ -24,7 +24,6 @@ import json
 import logging
 import os
 import shutil
-import statistics
 import tempfile
 import time
 from collections.abc import Mapping
@@ -44,6 +43,7 @@ from pipeline.core.settings import SEED_MAX, RuntimeSettings, coerce, parse
 from pipeline.core.stage import run_stage, stage_main
 from pipeline.data.tables import POSE_COLUMNS
 from pipeline.evaluation.metrics import solution_table, summarize
+from pipeline.evaluation.seeds import mean_std
 from pipeline.geometry.collision import SafetyDistances
 from pipeline.learning.models import IKNet, ModelSettings, build_model, save_checkpoint
 from pipeline.learning.training import (
@@ -162,10 +162,6 @@ class TrainingJob:
     job_dir: Path | None
 
     @property
-    def seeds_dir(self) -> Path:
-        return self.models_dir / f"{self.method.name}_seeds"
-
-    @property
     def register(self) -> bool:
         return self.tracking.register_models and self.job_dir is None  # a sweep's variants stay in their runs
 
@@ -266,8 +262,7 @@ def publish_chosen(trained: list[TrainedSeed], chosen: TrainedSeed, models_dir: 
     per_seed = {k: [t.final[k] for t in trained] for k in figures}
     spread = {}
     for k, values in per_seed.items():
-        spread[f"{k}_seed_mean"] = statistics.fmean(values)
-        spread[f"{k}_seed_std"] = statistics.stdev(values) if len(values) > 1 else 0.0
+        spread[f"{k}_seed_mean"], spread[f"{k}_seed_std"] = mean_std(values)
     final = {**chosen.final, "seeds": [t.seed for t in trained], **{f"{k}_by_seed": v for k, v in per_seed.items()},
              **spread}
     staging = Path(tempfile.mkdtemp(prefix=f".{name}.{process_token()}.", suffix=".tmp", dir=models_dir))

@@ -34,6 +34,12 @@ def seed_table(metrics: dict[str, dict[int, dict]], kept: dict[str, int | None])
     return pd.DataFrame(rows, columns=SEED_COLUMNS)
 
 
+def mean_std(values) -> tuple[float, float]:
+    """The mean and the sample std of a figure over seeds (std 0 for one seed)."""
+    values = [float(v) for v in values]
+    return statistics.fmean(values), (statistics.stdev(values) if len(values) > 1 else 0.0)
+
+
 def seed_spread(table: pd.DataFrame) -> dict[str, dict[str, float]]:
     """Per method: how many seeds, and the mean and sample std of its mean error and collision rate over them
     (std 0 for one seed)."""
@@ -41,8 +47,6 @@ def seed_spread(table: pd.DataFrame) -> dict[str, dict[str, float]]:
     for method, rows in table.groupby("method", sort=False):
         entry: dict[str, float] = {"seeds": int(len(rows))}
         for col in ("mean_mm", "collision_rate_pct"):
-            values = rows[col].astype(float).tolist()
-            entry[f"{col}_seed_mean"] = statistics.fmean(values)
-            entry[f"{col}_seed_std"] = statistics.stdev(values) if len(values) > 1 else 0.0
+            entry[f"{col}_seed_mean"], entry[f"{col}_seed_std"] = mean_std(rows[col])
         out[method] = entry
     return out
