@@ -3,10 +3,11 @@
     python -m pipeline.train method=cuikm
     python -m pipeline.train -m method=cuikm method.mu=0.1,1,10,100     # Hydra multirun
 
-Writes ``paths.data/models/<method>.pt`` (loads alone with ``pipeline.learning.models.load_checkpoint``),
-``<method>_history.csv`` (the held-out training curves) and ``<method>_final.json``. The three are
-written in a private folder first, logged to MLflow from there, and only then moved into place
-together: what a run logged is always its own model, whatever other trainings run beside it.
+Writes ``paths.data/models/<method>.pt`` (``paths.models/<method>.pt`` when that is set: a job of the sweeps; it
+loads alone with ``pipeline.learning.models.load_checkpoint``), ``<method>_history.csv`` (the held-out training
+curves) and ``<method>_final.json``. The three are written in a private folder first, logged to MLflow from there,
+and only then moved into place together: what a run logged is always its own model, whatever other trainings
+run beside it.
 
 The training's private folder ``.<method>.run-<digest>/`` (the digest of its settings, data and code)
 holds its resume state ``resume.pt``, written every ``runtime.checkpoint_every`` steps and on SIGTERM /
@@ -120,9 +121,14 @@ def run(cfg: DictConfig) -> dict:
                           f"passes {SEED_MAX}")
     device = resolve_device(cfg.device)
     safety, sampling = build_safety(cfg.boom, cfg.tunnel, cfg.safety), hole_sampling(cfg.holes)
-    # A sweep job keeps its model in its own job folder; a single run writes paths.data/models.
+    # A multirun job keeps its model in its own job folder, a job of the DVC sweeps in paths.models; a single run
+    # writes paths.data/models. Only the last is registered: a sweep's variants stay in their runs.
     job_dir = sweep.job_output_dir()
-    models_dir = require_writable(job_dir or project_path(cfg.paths.data) / "models", "paths.data")
+    own = OmegaConf.select(cfg, "paths.models")
+    if job_dir is None and own is not None:
+        job_dir = project_path(own)
+    models_dir = require_writable(job_dir or project_path(cfg.paths.data) / "models",
+                                  "paths.models" if own is not None else "paths.data")
     data = load_training_data(project_path(cfg.paths.data) / "holes", safety.boom, safety, sampling,
                               method.supervised, settings.val_size, settings.val_seed, method.sup_set)
     job = TrainingJob(cfg, settings, model_s, tracking, runtime, method, device, safety, sampling, data, models_dir,

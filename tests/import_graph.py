@@ -8,6 +8,7 @@ and see the checker catch it.
 from __future__ import annotations
 
 import ast
+import functools
 import re
 from pathlib import Path
 
@@ -22,7 +23,8 @@ LAYERS = ["core", "optim", "geometry", "data", "assembly", "learning", "solvers"
           "deploy", "plans", "motion", "round", "events", "rig_benchmarks", "tracking", "stages"]
 PRODUCT_PACKAGES = {"plans", "motion", "round", "events", "rig_benchmarks"}
 STUDY_STAGES = {"generate", "train", "evaluate", "solver_benchmark", "paper_baselines", "report", "derive_box",
-                "export", "export_benchmark", "calibrate", "params", "dashboard", "distill", "field_boom"}
+                "export", "export_benchmark", "calibrate", "params", "dashboard", "distill", "field_boom",
+                "sweep_table"}
 PRODUCT_STAGES = {"solve", "demo_face", "move_benchmark", "schedule", "execute", "quality"}
 
 
@@ -46,6 +48,12 @@ def is_package(module: str, modules: dict[str, str], root: Path = ROOT) -> bool:
 def imports(module: str, source: str, modules: dict[str, str], root: Path = ROOT) -> list[tuple[str, int, bool]]:
     """``(imported module, line, lazy)`` for every ``pipeline`` import of ``module``. ``from a import b``
     names module ``a.b`` where that is a module, else ``a``."""
+    # the checks ask the same (module, source, tree) hundreds of times: parse each once
+    return list(_imports(module, source, frozenset(modules), root))
+
+
+@functools.cache
+def _imports(module: str, source: str, modules: frozenset[str], root: Path) -> tuple[tuple[str, int, bool], ...]:
     tree = ast.parse(source)
     top = {id(n) for n in tree.body} | {id(n) for s in tree.body if isinstance(s, (ast.If, ast.Try))
                                          for n in ast.walk(s)}
@@ -64,7 +72,7 @@ def imports(module: str, source: str, modules: dict[str, str], root: Path = ROOT
                 sub = f"{base}.{a.name}"
                 found.append((sub if sub in modules else base, node.lineno, lazy))
     unique = dict.fromkeys(found)  # `from a import b, c` is one import of a
-    return [(m, line, lazy) for m, line, lazy in unique if m == PACKAGE or m.startswith(PACKAGE + ".")]
+    return tuple((m, line, lazy) for m, line, lazy in unique if m == PACKAGE or m.startswith(PACKAGE + "."))
 
 
 def layer(module: str) -> str | None:
@@ -193,6 +201,6 @@ def rewrite_dvc_code_deps(text: str, modules: dict[str, str], root: Path = ROOT)
     return "\n".join(out)
 
 
-if __name__ == "__main__":  # python tests/import_graph.py: refresh dvc.yaml's code deps after a move
-    path = ROOT / "dvc.yaml"
-    path.write_text(rewrite_dvc_code_deps(path.read_text(), sources()))
+if __name__ == "__main__":  # python tests/import_graph.py: refresh the pipelines' code deps after a move
+    for path in (ROOT / "dvc.yaml", ROOT / "sweeps" / "dvc.yaml"):
+        path.write_text(rewrite_dvc_code_deps(path.read_text(), sources()))

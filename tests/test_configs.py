@@ -31,6 +31,7 @@ from pipeline.round.settings import parse_round
 from pipeline.schedule import ScheduleSettings
 from pipeline.solve import SolveSettings, check_batch
 from pipeline.solvers.hybrid import HybridSettings
+from pipeline.sweep_table import SweepSettings
 from pipeline.tracking.runs import TrackingSettings
 
 EXPERIMENTS = sorted(p.stem for p in (CONF_DIR / "experiment").glob("*.yaml"))
@@ -75,6 +76,7 @@ def check_all_groups(cfg) -> None:
     parse_execute(cfg)
     check_batch(parse(SolveSettings, node(cfg, "solve"), "solve"), parse(HybridSettings, node(cfg, "solver"), "solver"))
     TrackingSettings.from_config(cfg.tracking)
+    SweepSettings.from_config(cfg.sweeps)  # sweep_table
     for key in METHOD_NODES:
         MethodSettings.from_config(OmegaConf.select(cfg, key), key)
     parse(SetSize, cfg.holes.unsup, "holes.unsup")  # generate's sets

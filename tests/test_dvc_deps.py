@@ -18,20 +18,41 @@ MODULES = g.sources()
 DATA = "${paths.data}/"
 
 
+PIPELINES = ["dvc.yaml", "sweeps/dvc.yaml"]  # the study and the product side; the sweeps (their own pipeline)
+
+
+def _lookup(params: dict, dotted: str):
+    node = params
+    for part in dotted.split("."):
+        node = node[part]
+    return node
+
+
 def stages() -> dict[str, dict]:
-    """dvc.yaml's stages, ``foreach`` expanded and the file names that come from a params value
-    (``${distill.teacher}``: a setting, not a path) resolved from params.yaml as DVC resolves them."""
-    text = (g.ROOT / "dvc.yaml").read_text()
+    """Every pipeline's stages, ``foreach`` expanded (over a mapping written out or over a params value,
+    ``${sweeps.jobs}``), and the file names that come from a params value (``${distill.teacher}``: a setting,
+    not a path) resolved from params.yaml as DVC resolves them. A stage of sweeps/dvc.yaml is named as DVC
+    names it (``sweeps/dvc.yaml:job@mu-1``)."""
     params = yaml.safe_load((g.ROOT / "params.yaml").read_text())
-    for key in ("teacher", "name"):
-        text = text.replace(f"${{distill.{key}}}", params["distill"][key])
-    spec = yaml.safe_load(text)["stages"]
     out = {}
-    for name, stage in spec.items():
-        body = stage.get("do", stage)
-        for key in stage.get("foreach", {None: None}):
-            resolved = yaml.safe_load(yaml.safe_dump(body).replace("${key}", str(key))) if key else body
-            out[name if key is None else f"{name}@{key}"] = resolved
+    for pipeline in PIPELINES:
+        text = (g.ROOT / pipeline).read_text()
+        for key in ("teacher", "name"):
+            text = text.replace(f"${{distill.{key}}}", params["distill"][key])
+        prefix = "" if pipeline == "dvc.yaml" else f"{pipeline}:"
+        for name, stage in yaml.safe_load(text)["stages"].items():
+            body = stage.get("do", stage)
+            items = stage.get("foreach", {None: None})
+            if isinstance(items, str):
+                items = _lookup(params, items.removeprefix("${").removesuffix("}"))
+            for key, item in items.items():
+                resolved = body
+                if key is not None:
+                    dumped = yaml.safe_dump(body).replace("${key}", str(key))
+                    for field, value in (item.items() if isinstance(item, dict) else []):
+                        dumped = dumped.replace(f"${{item.{field}}}", str(value))
+                    resolved = yaml.safe_load(dumped)
+                out[f"{prefix}{name}" if key is None else f"{prefix}{name}@{key}"] = resolved
     return out
 
 
@@ -96,7 +117,9 @@ def test_every_data_dep_is_written_by_a_stage():
     outs = {o: n for n, s in STAGES.items() for o in s.get("outs", []) + s.get("metrics", []) + s.get("plots", [])}
     for name, stage in STAGES.items():
         for dep in (d for d in stage["deps"] if d.startswith(DATA)):
-            assert any(dep == o or dep.startswith(o + "/") for o in outs), f"{name}: no stage writes {dep}"
+            # the out itself, a file in an out folder, or a folder of other stages' outs (a sweep's jobs)
+            assert any(dep == o or dep.startswith(o + "/") or o.startswith(dep + "/") for o in outs), \
+                f"{name}: no stage writes {dep}"
 
 
 @pytest.mark.parametrize("name", [n for n in sorted(STAGES) if n.startswith("train@") or n == "evaluate"])
@@ -130,6 +153,9 @@ def test_the_checker_sees_lazy_imports_and_product_files():
 def test_the_rewriter_restores_the_exact_deps():
     """`python tests/import_graph.py` (run after moving modules) leaves a true dvc.yaml as it is and
     turns directory deps back into the closure's files."""
+    for pipeline in PIPELINES[1:]:
+        text = (g.ROOT / pipeline).read_text()
+        assert g.rewrite_dvc_code_deps(text, MODULES) == text, pipeline
     text = (g.ROOT / "dvc.yaml").read_text()
     assert g.rewrite_dvc_code_deps(text, MODULES) == text
     coarse = text.replace("      - pipeline/evaluate.py\n", "      - pipeline/evaluate.py\n      - pipeline/plans\n", 1)

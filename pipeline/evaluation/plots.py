@@ -115,6 +115,35 @@ def tradeoff_figure(df: pd.DataFrame):
     return fig
 
 
+
+def sweep_front_figure(summary: pd.DataFrame, paper: dict, title: str):
+    """A sweep's jobs: mean error against mean collision rate on the test groups, the seeds' sample std as bars,
+    the Pareto front joined, and the paper's networks (``{method: {hole_mm_mean, collision_rate_pct}}``) as
+    crosses. The collision axis is linear up to 1 % and logarithmic beyond, so 0.05 % and 17 % both read."""
+    fig, ax = figure(figsize=(7, 4.8))
+    ax.errorbar(summary["collision_rate_pct"], summary["mean_mm"], xerr=summary["collision_rate_pct_std"],
+                yerr=summary["mean_mm_std"], fmt="o", color="tab:blue", capsize=3, label="job (mean, seed std)")
+    front = summary[summary["pareto"]].sort_values("collision_rate_pct")
+    ax.plot(front["collision_rate_pct"], front["mean_mm"], "-", color="tab:red", label="Pareto front")
+    for _, row in summary.iterrows():
+        ax.annotate(str(row["job"]), (row["collision_rate_pct"], row["mean_mm"]), fontsize=7, xytext=(4, 4),
+                    textcoords="offset points")
+    for method, figures in paper.items():
+        if figures.get("hole_mm_mean") is None:
+            continue  # the paper gives no error for it
+        ax.plot(figures["collision_rate_pct"], figures["hole_mm_mean"], "x", color="k", ms=8)
+        ax.annotate(f"paper 000 {method.upper()}", (figures["collision_rate_pct"], figures["hole_mm_mean"]),
+                    fontsize=7, xytext=(4, -10), textcoords="offset points")
+    ax.set_xscale("symlog", linthresh=1.0)
+    ax.set_yscale("log")
+    ax.set_xlabel("collision rate on the five test groups (%)")
+    ax.set_ylabel("mean hole-seeking error (mm)")
+    ax.set_title(title, fontsize=9)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout(pad=1.5)
+    return fig
+
 STATUS_COLOURS = {"ok": "tab:green", "inexact": "tab:orange", "unsafe": "tab:red", "unreachable": "tab:purple",
                   "invalid": "tab:gray"}
 VIEWS = (("side", 0, 2, "x (m)", "z (m)"), ("top", 0, 1, "x (m)", "y (m)"), ("front", 1, 2, "y (m)", "z (m)"))
