@@ -40,7 +40,7 @@ from pipeline.evaluation.pareto import pareto_front
 from pipeline.evaluation.plots import sweep_front_figure
 from pipeline.evaluation.seeds import mean_std, seed_checkpoints
 from pipeline.learning.network_source import load_network
-from pipeline.tracking.runs import TrackingSettings, stage_run
+from pipeline.tracking.runs import TrackingSettings, flatten, stage_run
 
 log = logging.getLogger(__name__)
 METHOD = "cuikm"   # the file stem of the networks a job trains (the `method` node is CUIKM)
@@ -149,19 +149,10 @@ def load_seeds(folder: Path, job: str, boom) -> dict[int, tuple]:
     return {seed: load_network(path, boom) for seed, path in paths.items()}
 
 
-def flat(node, prefix: str = "") -> dict:
-    """A nested mapping as ``{"a.b": value}``."""
-    if not isinstance(node, Mapping):
-        return {prefix: node}
-    out = {}
-    for key, value in node.items():
-        out.update(flat(value, f"{prefix}.{key}" if prefix else str(key)))
-    return out
-
-
 def setting(meta: dict, key: str, job: str, seed: int):
-    """A training setting as the network's record holds it (``method.mu`` -> its ``config.method.mu``)."""
-    values = flat(meta.get("config") or {})
+    """A training setting as the network's record holds it (``method.mu`` -> its ``config.method.mu``), as the
+    text its MLflow run logs it with (``readable``: ``0.1``, ``10``)."""
+    values = flatten(meta.get("config") or {})
     if key not in values:
         raise InputError(f"sweep point {job!r}, seed {seed}: its network's record has no setting {key!r}")
     return values[key]
@@ -171,7 +162,7 @@ def check_same_study(networks: dict[str, dict[int, tuple]], reference: str, swep
     """Every network was trained with the reference's settings but for the swept ones; InputError naming the
     first point and setting that differ otherwise."""
     def compared(meta):
-        return {k: v for k, v in flat(meta.get("config") or {}).items()
+        return {k: v for k, v in flatten(meta.get("config") or {}).items()
                 if k not in swept and not any(k == n or k.startswith(n + ".") for n in NOT_COMPARED)}
 
     ref_seed, (_, ref_meta) = next(iter(networks[reference].items()))

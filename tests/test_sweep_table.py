@@ -99,7 +99,7 @@ def test_a_point_trained_under_other_defaults_is_refused_and_nothing_is_overwrit
     payload["config"]["train"]["steps"] += 1  # planted: the job trained one step longer than the reference
     torch.save(payload, ckpt)
     try:
-        with pytest.raises(InputError, match=r"'mu-1', seed 0: trained with train\.steps = 151.*150"):
+        with pytest.raises(InputError, match=r"'mu-1', seed 0: trained with train\.steps = '151'.*'150'"):
             sweep_table.run(_cfg(make_cfg, tmp, jobs))
     finally:
         ckpt.write_bytes(good)
