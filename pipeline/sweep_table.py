@@ -15,7 +15,8 @@ job trained under other defaults would be a different study). Writes under ``pat
   the sweep's folder);
 - ``summary.csv``: one row per job: the mean and sample std over its seeds, and whether the job's means are on
   the Pareto front of the sweep (no other job lower in both error and collision rate);
-- ``tradeoff.png``: error against collision rate, seed std as bars, the front and paper 000's networks.
+- ``tradeoff.png``: error against collision rate, seed std as bars, the front and Wu et al. 2024's networks
+  (paper 000's numbers, ``pipeline/evaluation/paper_numbers.py``).
 """
 
 from __future__ import annotations

@@ -138,7 +138,10 @@ def test_dvc_repro_of_the_quick_experiment_then_up_to_date_and_a_param_change_re
                "runtime.threads=1", "runtime.train_threads=1", "draws.count=20", "export.benchmark.compile=false",
                "export.benchmark.isolate=false", "round.sweep_more_bands_m=[]", "round.postures=1",
                "solver_benchmark.methods=[cuikm,uikm,sikm,sikm_best,cuikm_start,hybrid,nm]",
-               "train.seeds=2"]  # the study's seeded path: <method>_seeds, each seed evaluated, the report's spread
+               "train.seeds=2",  # the study's seeded path: <method>_seeds, each seed evaluated, the report's spread
+               # the sweeps' pipeline (sweeps/dvc.yaml) at its smallest: one job, mu = 1, and the mu table
+               *[f"~sweeps.jobs.{job}" for job in ("mu-0p1", "mu-100", "self-0p2", "wall-0p6", "ground-0p2",
+                                                   "arch-0p2")], "~sweeps.tables.safety"]
     _run(compose, cwd=tmp_path)
     dvc = [sys.executable, "-m", "dvc"]
     _run([*dvc, "repro"], cwd=tmp_path, timeout=1500)  # a guard against a hang, not a speed test
@@ -157,9 +160,15 @@ def test_dvc_repro_of_the_quick_experiment_then_up_to_date_and_a_param_change_re
     outs = {p: (tmp_path / d / p).stat().st_mtime_ns for p in ["holes/meta.json", "models/sikm.pt", "models/uikm.pt",
                                                              "models/cuikm.pt", "eval/metrics.json",
                                                              "report/README.md"]}
-    _run([*dvc, "repro"], cwd=tmp_path)
-    assert {p: (tmp_path / d / p).stat().st_mtime_ns for p in outs} == outs  # nothing was rebuilt
-    status = _run([*dvc, "status", "--json"], cwd=tmp_path)
+    # the sweeps: the job trains into its own folder, the table scores it beside the study's CUIKM (the reference);
+    # DVC walks their upstream, generate and train@cuikm, and rebuilds nothing of the study
+    _run([*dvc, "repro", "sweeps/dvc.yaml"], cwd=tmp_path)
+    assert {p: (tmp_path / d / p).stat().st_mtime_ns for p in outs} == outs
+    jobs = pd.read_csv(tmp_path / d / "sweeps/mu/jobs.csv")
+    assert sorted(zip(jobs["job"], jobs["seed"], jobs["method.mu"], strict=True)) == [
+        ("mu-1", 0, 1), ("mu-1", 1, 1), ("reference", 0, 10), ("reference", 1, 10)]
+    assert (tmp_path / d / "sweeps/mu/jobs/mu-1/cuikm_seeds/cuikm_seed1.pt").is_file()
+    status = _run([*dvc, "status", "--json"], cwd=tmp_path)  # both pipelines up to date: a repro would run nothing
     assert json.loads(status.stdout) == {}
     _check_dataset_digests_are_dvc_hashes(tmp_path, d)
 
