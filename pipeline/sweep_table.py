@@ -32,7 +32,7 @@ from omegaconf import DictConfig
 from pipeline.assembly.build import build_safety
 from pipeline.core.config import as_dict, project_path
 from pipeline.core.errors import ConfigError, InputError
-from pipeline.core.io import save_figure, write_csv, write_parquet
+from pipeline.core.io import publish, publish_lock, save_figure, staged_folder, write_csv, write_parquet
 from pipeline.core.stage import run_stage, stage_main
 from pipeline.data.hole_sets import read_test_groups
 from pipeline.evaluation.metrics import evaluate_network
@@ -113,21 +113,18 @@ def run(cfg: DictConfig) -> pd.DataFrame:
             as mlrun:
         mlrun.log_params({"sweeps": {"table": settings.table, "swept": swept,
                                      "jobs": {j: settings.jobs[j]["set"] for j in networks if j in settings.jobs}}})
-        rows = []
+        rows, predictions = [], {}
         for job, seeds in networks.items():
             for seed, (model, meta) in seeds.items():
                 result = evaluate_network(model, meta, safety, groups, 0)
                 folder = Path("predictions") / job / f"seed{seed}"
-                for k, pred in result.predictions.items():
-                    write_parquet(pred, out / folder / f"group{k}.parquet")
+                predictions.update({folder / f"group{k}.parquet": pred for k, pred in result.predictions.items()})
                 rows.append(job_row(job, seed, meta, swept, result.metrics, folder))
         jobs = pd.DataFrame(rows)
         summary = job_summary(jobs, swept)
-        write_csv(jobs, out / "jobs.csv")
-        write_csv(summary, out / "summary.csv")
         fig = sweep_front_figure(summary, PAPER000, f"CUIKM, {settings.table} sweep: {len(summary)} settings, "
                                                     f"{jobs.groupby('job').size().min()}+ seeds each")
-        save_figure(fig, out / "tradeoff.png")
+        write_set(out, predictions, jobs, summary, fig)
         mlrun.log_table(jobs, "tables/jobs.json")
         mlrun.log_table(summary, "tables/summary.json")
         mlrun.log_figure(fig, "figures/tradeoff.png")
@@ -139,6 +136,20 @@ def run(cfg: DictConfig) -> pd.DataFrame:
                  row["mean_mm_std"], row["collision_rate_pct"], row["collision_rate_pct_std"], row["seeds"],
                  " (Pareto front)" if row["pareto"] else "")
     return summary
+
+
+def write_set(out: Path, predictions: dict[Path, pd.DataFrame], jobs: pd.DataFrame, summary: pd.DataFrame,
+              fig) -> None:
+    """The sweep's files, written in a private folder and published together: an interrupted run leaves the
+    earlier set whole, and the predictions folder is replaced whole (no file of a point since removed stays)."""
+    with staged_folder(out, "sweep_table") as stage:
+        for rel, pred in predictions.items():
+            write_parquet(pred, stage / rel)
+        write_csv(jobs, stage / "jobs.csv")
+        write_csv(summary, stage / "summary.csv")
+        save_figure(fig, stage / "tradeoff.png")
+        publish({stage / name: out / name for name in ("jobs.csv", "summary.csv", "tradeoff.png")},
+                publish_lock(out, "sweep_table"), folders={stage / "predictions": out / "predictions"})
 
 
 def load_seeds(folder: Path, job: str, boom) -> dict[int, tuple]:

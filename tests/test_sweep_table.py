@@ -3,6 +3,7 @@ networks' own records, the front computed, and a point trained under other defau
 written."""
 
 import itertools
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -104,6 +105,28 @@ def test_a_point_trained_under_other_defaults_is_refused_and_nothing_is_overwrit
     finally:
         ckpt.write_bytes(good)
     assert out.read_bytes() == before
+
+
+def _sweep_files(out):
+    """The table's own files (not the jobs' networks beside them), by path, with their bytes."""
+    return {p.relative_to(out): p.read_bytes() for p in out.rglob("*")
+            if p.is_file() and p.relative_to(out).parts[0] != "jobs"}
+
+
+@pytest.mark.slow
+def test_a_run_stopped_while_writing_leaves_the_earlier_set_whole(swept, make_cfg, monkeypatch):
+    tmp, jobs, _ = swept
+    out = tmp / "data/sweeps/mu"
+    before = _sweep_files(out)
+    assert any(p.parts[0] == "predictions" for p in before) and Path("jobs.csv") in before
+
+    def stopped(*_):  # the last file of the set: everything else is written by then
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweep_table, "save_figure", stopped)
+    with pytest.raises((KeyboardInterrupt, SystemExit)):  # a set unlike the first: the reference renamed
+        sweep_table.run(_cfg(make_cfg, tmp, jobs, "sweeps.reference=defaults"))
+    assert _sweep_files(out) == before  # nothing replaced, nothing left of the private folder
 
 
 @pytest.mark.parametrize(("jobs", "overrides", "error", "match"), [
