@@ -11,8 +11,9 @@ job trained under other defaults would be a different study). Writes under ``pat
 
 - ``predictions/<job>/seed<k>/group<g>.parquet``: each seed's joints for each test group;
 - ``jobs.csv``: one row per job and seed: the swept settings, ``seed, mean_mm, p95_mm, collision_rate_pct,
-  any_violation_pct, val_hole_mm, train_seconds, predictions`` (that seed's folder of group files, relative to
-  the sweep's folder);
+  any_violation_pct, collisions_self, collisions_wall, collisions_ground, collisions_arch, val_hole_mm,
+  train_seconds, predictions`` (the ``collisions_<kind>`` columns count the test holes whose answer breaks that
+  reference distance; ``predictions`` is that seed's folder of group files, relative to the sweep's folder);
 - ``summary.csv``: one row per job: the mean and sample std over its seeds, and whether the job's means are on
   the Pareto front of the sweep (no other job lower in both error and collision rate);
 - ``tradeoff.png``: error against collision rate, seed std as bars, the front and Wu et al. 2024's networks
@@ -40,12 +41,17 @@ from pipeline.evaluation.paper_numbers import PAPER000
 from pipeline.evaluation.pareto import pareto_front
 from pipeline.evaluation.plots import sweep_front_figure
 from pipeline.evaluation.seeds import mean_std, seed_checkpoints
+from pipeline.geometry.collision import SAFETY_KINDS
 from pipeline.learning.network_source import load_network
 from pipeline.tracking.runs import TrackingSettings, flatten, stage_run
 
 log = logging.getLogger(__name__)
 METHOD = "cuikm"   # the file stem of the networks a job trains (the `method` node is CUIKM)
-FIGURES = ["mean_mm", "p95_mm", "collision_rate_pct", "any_violation_pct", "val_hole_mm", "train_seconds"]
+# collisions_<kind>: the test holes (all five groups) whose answer breaks that reference distance: which distance
+# the collision rate is made of, so a sweep shows which training distance moves it
+KIND_COLUMNS = [f"collisions_{kind}" for kind in SAFETY_KINDS]
+FIGURES = ["mean_mm", "p95_mm", "collision_rate_pct", "any_violation_pct", *KIND_COLUMNS, "val_hole_mm",
+           "train_seconds"]
 # a network's record differs from the reference's in these without being another study: its seed, how many seeds
 # its job trained, and how the training ran (threads, progress), which train keeps out of its resume digest too
 NOT_COMPARED = ("train.seed", "train.seeds", "runtime")
@@ -197,6 +203,7 @@ def job_row(job: str, seed: int, meta: dict, swept: list[str], metrics: dict, fo
             "mean_mm": metrics["hole_mm_mean"], "p95_mm": metrics["hole_mm_p95"],
             "collision_rate_pct": 100 * metrics["collision_rate_paper"],
             "any_violation_pct": 100 * metrics["any_violation_share"],
+            **{col: metrics[col] for col in KIND_COLUMNS},
             "val_hole_mm": final.get("val_hole_mm"), "train_seconds": final.get("train_seconds"),
             "predictions": folder.as_posix()}
 

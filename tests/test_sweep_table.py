@@ -40,7 +40,8 @@ def test_every_seed_of_every_point_is_a_row_with_its_own_settings(swept):
     tmp, _, _ = swept
     rows = pd.read_csv(tmp / "data/sweeps/mu/jobs.csv")
     assert list(rows.columns) == ["job", "method.lam", "method.mu", "seed", "mean_mm", "p95_mm", "collision_rate_pct",
-                                  "any_violation_pct", "val_hole_mm", "train_seconds", "predictions"]
+                                  "any_violation_pct", "collisions_self", "collisions_wall", "collisions_ground",
+                                  "collisions_arch", "val_hole_mm", "train_seconds", "predictions"]
     assert sorted(zip(rows["job"], rows["seed"], strict=True)) == [("mu-1", 0), ("reference", 0), ("reference", 1)]
     assert set(rows.loc[rows["job"] == "reference", "method.mu"]) == {10.0}  # the defaults, from the records
     assert set(rows.loc[rows["job"] == "mu-1", "method.mu"]) == {1.0}
@@ -48,11 +49,13 @@ def test_every_seed_of_every_point_is_a_row_with_its_own_settings(swept):
 
 
 @pytest.mark.slow
-def test_the_predictions_are_each_seed_s_own_network_on_the_test_groups(swept):
-    """The files a row names hold what that seed's network answers, not another seed's or job's."""
+def test_the_predictions_are_each_seed_s_own_network_on_the_test_groups(swept, safety):
+    """The files a row names hold what that seed's network answers, not another seed's or job's, and the row's
+    collisions per kind are those answers' violations of the reference distances, counted here from the joints."""
     tmp, _, _ = swept
     rows = pd.read_csv(tmp / "data/sweeps/mu/jobs.csv")
     groups = read_test_groups(tmp / "data/holes")
+    holes = sum(len(df) for df, _ in groups.values())
     nets = {("reference", 0): tmp / "data/models/cuikm_seeds/cuikm_seed0.pt",
             ("reference", 1): tmp / "data/models/cuikm_seeds/cuikm_seed1.pt",
             ("mu-1", 0): tmp / "data/sweeps/mu/jobs/mu-1/cuikm_seeds/cuikm_seed0.pt"}
@@ -67,6 +70,13 @@ def test_the_predictions_are_each_seed_s_own_network_on_the_test_groups(swept):
                 expected = model(pose.float()).double()
             torch.testing.assert_close(joints, expected, atol=1e-6, rtol=0)
             answers[(job, seed, k)] = joints
+        counted = {kind: 0 for kind in ("self", "wall", "ground", "arch")}
+        for k in groups:  # the written joints against the reference safety model, kind by kind
+            bad = safety.violations(safety.clearances(answers[(job, seed, k)]))
+            counted = {kind: n + int(bad[kind].sum()) for kind, n in counted.items()}
+        row = rows[(rows["job"] == job) & (rows["seed"] == seed)].iloc[0]
+        assert {kind: row[f"collisions_{kind}"] for kind in counted} == counted
+        assert 100 * sum(counted.values()) / holes == pytest.approx(row["collision_rate_pct"])
     assert not torch.equal(answers[("reference", 0, 1)], answers[("reference", 1, 1)])  # two seeds, two networks
 
 

@@ -132,7 +132,7 @@ def sweep_front_figure(summary: pd.DataFrame, paper: dict, title: str):
         if figures.get("hole_mm_mean") is None:
             continue  # the paper gives no error for it
         ax.plot(figures["collision_rate_pct"], figures["hole_mm_mean"], "x", color="k", ms=8)
-        ax.annotate(f"paper 000 {method.upper()}", (figures["collision_rate_pct"], figures["hole_mm_mean"]),
+        ax.annotate(f"Wu et al. 2024 {method.upper()}", (figures["collision_rate_pct"], figures["hole_mm_mean"]),
                     fontsize=7, xytext=(4, -10), textcoords="offset points")
     ax.set_xscale("symlog", linthresh=1.0)
     ax.set_yscale("log")
