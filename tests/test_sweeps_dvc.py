@@ -133,8 +133,12 @@ def test_dvc_repro_of_the_quick_experiment_then_up_to_date_and_a_param_change_re
     # 10 s of each only starting Python, torch and MLflow), 594 s for the test in CI. Likewise the round's
     # extra seed bands and its posture plannings, and the benchmark's population methods (tested in
     # tests/test_schedule.py, tests/test_postures.py and tests/test_solvers.py): the first repro of 17
-    # stages, alone on 2 cores, took 188 s with them (schedule 31 s, benchmark 23 s).
+    # stages, alone on 2 cores, took 188 s with them (schedule 31 s, benchmark 23 s). And a tenth of OMPL's
+    # iterations per detour search: the round planned on the tiny loop's calibrated model has moves nothing
+    # makes clear, and each of their searches ran all 5 000 (loop_after's planning: 74 s, 12 s with 500, the
+    # same round; detours are tested in tests/test_detours.py).
     compose = [sys.executable, "-m", "pipeline.params", *SHORT, "round.routing=false", "schedule.baselines=false",
+               "round.detour_iterations=500",
                "runtime.threads=1", "runtime.train_threads=1", "draws.count=20", "export.benchmark.compile=false",
                "export.benchmark.isolate=false", "round.sweep_more_bands_m=[]", "round.postures=1",
                "solver_benchmark.methods=[cuikm,uikm,sikm,sikm_best,cuikm_start,hybrid,nm]",
