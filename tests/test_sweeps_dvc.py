@@ -12,7 +12,7 @@ import pytest
 import yaml
 from mlflow.tracking import MlflowClient
 
-from pipeline.core.config import PROJECT_ROOT
+from pipeline.core.config import PROJECT_ROOT, load_group_file
 from pipeline.evaluation.pareto import pareto_front, summary_table
 from pipeline.params import composed_yaml
 
@@ -137,15 +137,18 @@ def test_dvc_repro_of_the_quick_experiment_then_up_to_date_and_a_param_change_re
     # iterations per detour search: the round planned on the tiny loop's calibrated model has moves nothing
     # makes clear, and each of their searches ran all 5 000 (loop_after's planning: 74 s, 12 s with 500, the
     # same round; detours are tested in tests/test_detours.py).
+    sweeps = load_group_file("sweeps", "default")
+    assert "mu-1" in sweeps["jobs"] and "mu" in sweeps["tables"]
     compose = [sys.executable, "-m", "pipeline.params", *SHORT, "round.routing=false", "schedule.baselines=false",
                "round.detour_iterations=500",
                "runtime.threads=1", "runtime.train_threads=1", "draws.count=20", "export.benchmark.compile=false",
                "export.benchmark.isolate=false", "round.sweep_more_bands_m=[]", "round.postures=1",
                "solver_benchmark.methods=[cuikm,uikm,sikm,sikm_best,cuikm_start,hybrid,nm]",
                "train.seeds=2",  # the study's seeded path: <method>_seeds, each seed evaluated, the report's spread
-               # the sweeps' pipeline (sweeps/dvc.yaml) at its smallest: one job, mu = 1, and the mu table
-               *[f"~sweeps.jobs.{job}" for job in ("mu-0p1", "mu-100", "self-0p2", "wall-0p6", "ground-0p2",
-                                                   "arch-0p2")], "~sweeps.tables.safety"]
+               # the sweeps' pipeline (sweeps/dvc.yaml) at its smallest: one job, mu = 1, and the mu table (every
+               # other job and table of conf/sweeps/default.yaml removed, those added later too)
+               *[f"~sweeps.jobs.{job}" for job in sweeps["jobs"] if job != "mu-1"],
+               *[f"~sweeps.tables.{table}" for table in sweeps["tables"] if table != "mu"]]
     _run(compose, cwd=tmp_path)
     dvc = [sys.executable, "-m", "dvc"]
     _run([*dvc, "repro"], cwd=tmp_path, timeout=1500)  # a guard against a hang, not a speed test
