@@ -91,6 +91,47 @@ def test_tunnel_distances_match_sampled_outline(yz):
         assert float(got[k]) == pytest.approx(want[k], abs=1e-4), k
 
 
+def _stacked_surface_distances(tunnel, y, z):
+    """The horseshoe's distances written as the study's trainings first computed them: each norm over its own
+    stacked (y, z) pair, the wall's and the arch's corner distance apart."""
+    from pipeline.geometry.rotations import safe_norm
+
+    def signed_hypot(u, v, sign_of):
+        return torch.where(sign_of < 0, -1.0, 1.0).to(u.dtype) * safe_norm(torch.stack([u, v], dim=-1))
+
+    r, h = tunnel.half_width, tunnel.wall_height
+    inward = r - y.abs()
+    above = z > h
+    wall = torch.where(above, signed_hypot(inward, z - h, inward), inward)
+    radial = safe_norm(torch.stack([y, z - h], dim=-1))
+    arch = torch.where(above, r - radial, signed_hypot(inward, h - z, inward))
+    return {"wall": wall, "ground": z, "arch": arch}
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_tunnel_distances_and_their_gradients_keep_the_stacked_forms_bits(dtype):
+    """The trained networks and drawn hole sets on record were made with the stacked form: the faster one must give
+    the same bits, values and gradients, or a rerun of the study would not reproduce them. Points inside and outside
+    the profile, on the corners and the springing line, with a loss in which all three surfaces reach each point."""
+    tunnel, g = Horseshoe(), torch.Generator().manual_seed(11)
+    y = (torch.rand(50_000, generator=g, dtype=D) * 8 - 4).to(dtype)
+    z = (torch.rand(50_000, generator=g, dtype=D) * 7 - 1).to(dtype)
+    h, rr = tunnel.wall_height, tunnel.half_width
+    y[:6] = torch.tensor([rr, -rr, 0.0, rr, rr + 0.5, -0.0], dtype=dtype)
+    z[:6] = torch.tensor([h, h, h, 0.0, h, h + rr], dtype=dtype)
+    w = torch.randn(3, 50_000, generator=g, dtype=D).to(dtype)
+    got = []
+    for distances in (tunnel.surface_distances, lambda a, b: _stacked_surface_distances(tunnel, a, b)):
+        yy, zz = y.clone().requires_grad_(), z.clone().requires_grad_()
+        d = distances(yy, zz)
+        (d["wall"] * w[0] + torch.relu(-d["arch"]) * w[1] + d["ground"] * w[2]).sum().backward()
+        got.append([d["wall"].detach(), d["arch"].detach(), yy.grad, zz.grad])
+    for a, b in zip(got[0][:2], got[1][:2], strict=True):  # the distances, to the sign of a zero
+        assert torch.equal(a, b) and torch.equal(a.signbit(), b.signbit())
+    for a, b in zip(got[0][2:], got[1][2:], strict=True):  # the gradients: a zero's sign may differ (0 + -0 is 0),
+        assert torch.equal(a, b)  # which no sum with a nonzero term, and no optimiser step, can see
+
+
 def test_tunnel_distance_negative_outside():
     tunnel = Horseshoe()
     d = tunnel.surface_distances(torch.tensor([2.7, 0.0, 0.0], dtype=D), torch.tensor([1.0, -0.2, 5.9], dtype=D))

@@ -17,6 +17,17 @@ def safe_norm(x: torch.Tensor, dim: int = -1) -> torch.Tensor:
     return torch.where(pos, torch.sqrt(torch.where(pos, sq, torch.ones_like(sq))), torch.zeros_like(sq))
 
 
+def safe_hypot(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """:func:`safe_norm` of ``stack([u, v], -1)`` with the same float operations (so the same bits and
+    gradients), without building the stacked tensor and reducing over its short last axis: the tunnel
+    distances take the norm of one (y, z) pair per checked point, in every training step. ``square``,
+    not ``u * u``: a product of a tensor with itself hands autograd two terms, which would reach ``u``'s
+    other gradients one at a time and round differently from the stacked form."""
+    sq = u.square() + v.square()
+    pos = sq > 0
+    return torch.where(pos, torch.sqrt(torch.where(pos, sq, torch.ones_like(sq))), torch.zeros_like(sq))
+
+
 def angle_between(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     """Angle (rad) between vectors ``(..., 3)``; atan2(|u x v|, u.v) stays accurate for the small
     angles that matter here, unlike arccos."""

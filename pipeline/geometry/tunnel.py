@@ -16,7 +16,7 @@ from typing import Protocol
 import torch
 
 from pipeline.core.errors import ConfigError
-from pipeline.geometry.rotations import safe_norm
+from pipeline.geometry.rotations import safe_hypot
 
 SURFACES = ("wall", "ground", "arch")
 
@@ -43,10 +43,6 @@ class Tunnel(Protocol):
     def profile_polyline(self) -> tuple[list[float], list[float]]: ...
 
     def describe(self) -> str: ...
-
-
-def _signed_hypot(u: torch.Tensor, v: torch.Tensor, sign_of: torch.Tensor) -> torch.Tensor:
-    return torch.where(sign_of < 0, -1.0, 1.0).to(u.dtype) * safe_norm(torch.stack([u, v], dim=-1))
 
 
 @dataclass(frozen=True)
@@ -105,9 +101,13 @@ class Horseshoe:
         r, h = self.half_width, self.wall_height
         inward = r - y.abs()  # horizontal distance to the nearer wall line
         above = z > h
-        wall = torch.where(above, _signed_hypot(inward, z - h, inward), inward)
-        radial = safe_norm(torch.stack([y, z - h], dim=-1))
-        arch = torch.where(above, r - radial, _signed_hypot(inward, h - z, inward))
+        # The signed distance to the corner (side * r, h) is the wall's above it and the arch's below.
+        # ``z - h`` is taken once per use, in this order, so that autograd adds the gradients reaching
+        # ``z`` in the same order, and to the same bits, as when each norm had its own stacked input.
+        corner = safe_hypot(inward, z - h)
+        corner = torch.where(inward < 0, -corner, corner)
+        wall = torch.where(above, corner, inward)
+        arch = torch.where(above, r - safe_hypot(y, z - h), corner)
         return {"wall": wall, "ground": z, "arch": arch}
 
     def surface_gradients(self, y: torch.Tensor, z: torch.Tensor) -> dict[str, tuple[torch.Tensor, torch.Tensor]]:
@@ -122,10 +122,10 @@ class Horseshoe:
         above = z > h
         zero, one = torch.zeros_like(y), torch.ones_like(y)
         # distance to the wall's (or arch's) end point (side * r, h): signed hypot of (inward, z - h)
-        corner = safe_norm(torch.stack([inward, z - h], dim=-1)).clamp_min(1e-12)
+        corner = safe_hypot(inward, z - h).clamp_min(1e-12)
         sign = torch.where(inward < 0, -1.0, 1.0).to(y.dtype)
         corner_dy, corner_dz = -side * inward * sign / corner, (z - h) * sign / corner
-        radial = safe_norm(torch.stack([y, z - h], dim=-1)).clamp_min(1e-12)
+        radial = safe_hypot(y, z - h).clamp_min(1e-12)
         wall = (torch.where(above, corner_dy, -side), torch.where(above, corner_dz, zero))
         arch = (torch.where(above, -y / radial, corner_dy), torch.where(above, -(z - h) / radial, corner_dz))
         return {"wall": wall, "ground": (zero, one), "arch": arch}
