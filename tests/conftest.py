@@ -88,13 +88,26 @@ def make_cfg():
 
 @pytest.fixture(scope="session")
 def _tiny_study(tmp_path_factory, make_cfg) -> Path:
-    """Built once: the tiny experiment's holes, the demo face and its CUIKM network, with their MLflow runs."""
+    """Built once a session: the tiny experiment's holes, the demo face and its CUIKM network, with their MLflow
+    runs. Under pytest-xdist the workers share one build (the first to need it builds it, under a lock, in the
+    session's own temporary folder), as no test writes to it: they use copies (``copy_study``)."""
+    from filelock import FileLock
+
     from pipeline import demo_face, generate, train
 
-    tmp = tmp_path_factory.mktemp("tiny_study")
-    generate.run(make_cfg(tmp))
-    demo_face.run(make_cfg(tmp))  # the drill plans, as DVC's demo_face stage writes them
-    train.run(make_cfg(tmp, "method=cuikm"))
+    if os.environ.get("PYTEST_XDIST_WORKER") is None:
+        root = tmp_path_factory.getbasetemp()
+    else:  # .../pytest-<n>/popen-gw<k>: the parent is this session's, shared by its workers alone
+        root = tmp_path_factory.getbasetemp().parent
+    tmp, done = root / "tiny_study_shared", root / "tiny_study_shared.done"
+    with FileLock(str(root / "tiny_study_shared.lock")):
+        if not done.is_file():
+            shutil.rmtree(tmp, ignore_errors=True)  # a build a failed worker left half done
+            tmp.mkdir()
+            generate.run(make_cfg(tmp))
+            demo_face.run(make_cfg(tmp))  # the drill plans, as DVC's demo_face stage writes them
+            train.run(make_cfg(tmp, "method=cuikm"))
+            done.touch()
     return tmp
 
 

@@ -164,10 +164,9 @@ def test_bad_config_is_named_and_nothing_is_overwritten(generated, tmp_path, ove
 
 @pytest.mark.slow
 def test_cli_entry_point(tmp_path):
-    """``python -m pipeline.generate`` as a user runs it; a bad override fails with the field named."""
+    """``python -m pipeline.generate`` as a user runs it (a bad override's exit code and message, with the known
+    options named: tests/test_exit_codes.py)."""
     cmd = [sys.executable, "-m", "pipeline.generate", *SMALL, f"paths.data={tmp_path}", f"hydra.run.dir={tmp_path}/h"]
     done = subprocess.run(cmd, cwd=PROJECT_ROOT, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "holes" / "meta.json").is_file()
-    bad = subprocess.run([*cmd, "boom=jumbo9"], cwd=PROJECT_ROOT, capture_output=True, text=True, timeout=120)
-    assert bad.returncode != 0 and "jumbo9" in bad.stderr and "jumbo8" in bad.stderr

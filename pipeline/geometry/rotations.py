@@ -10,11 +10,15 @@ import torch
 from pipeline.core.errors import InputError
 
 
-def safe_norm(x: torch.Tensor, dim: int = -1) -> torch.Tensor:
-    """Euclidean norm whose gradient is 0 (not NaN) at the origin."""
-    sq = (x * x).sum(dim)
+def _safe_sqrt(sq: torch.Tensor) -> torch.Tensor:
+    """Square root of a sum of squares whose gradient is 0 (not NaN) where the sum is 0."""
     pos = sq > 0
     return torch.where(pos, torch.sqrt(torch.where(pos, sq, torch.ones_like(sq))), torch.zeros_like(sq))
+
+
+def safe_norm(x: torch.Tensor, dim: int = -1) -> torch.Tensor:
+    """Euclidean norm whose gradient is 0 (not NaN) at the origin."""
+    return _safe_sqrt((x * x).sum(dim))
 
 
 def safe_hypot(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
@@ -23,9 +27,7 @@ def safe_hypot(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     distances take the norm of one (y, z) pair per checked point, in every training step. ``square``,
     not ``u * u``: a product of a tensor with itself hands autograd two terms, which would reach ``u``'s
     other gradients one at a time and round differently from the stacked form."""
-    sq = u.square() + v.square()
-    pos = sq > 0
-    return torch.where(pos, torch.sqrt(torch.where(pos, sq, torch.ones_like(sq))), torch.zeros_like(sq))
+    return _safe_sqrt(u.square() + v.square())
 
 
 def angle_between(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
