@@ -70,7 +70,7 @@ def test_the_predictions_are_each_seed_s_own_network_on_the_test_groups(swept, s
                 expected = model(pose.float()).double()
             torch.testing.assert_close(joints, expected, atol=1e-6, rtol=0)
             answers[(job, seed, k)] = joints
-        counted = {kind: 0 for kind in ("self", "wall", "ground", "arch")}
+        counted = dict.fromkeys(SAFETY_KINDS, 0)
         for k in groups:  # the written joints against the reference safety model, kind by kind
             bad = safety.violations(safety.clearances(answers[(job, seed, k)]))
             counted = {kind: n + int(bad[kind].sum()) for kind, n in counted.items()}
