@@ -53,7 +53,7 @@ from pipeline.core.io import file_md5, require_writable, save_figure, write_csv,
 from pipeline.core.settings import SEED_MAX, RuntimeSettings, coerce, parse, rule
 from pipeline.core.stage import run_stage, stage_main
 from pipeline.events.draws import parse_draws
-from pipeline.events.robust_round import robust_finish
+from pipeline.events.robust_round import robust_hooks
 from pipeline.events.zone_choice import ZoneSettings
 from pipeline.motion.timing import rig_motions
 from pipeline.plans.model import COLLAR
@@ -167,9 +167,11 @@ def run(cfg: DictConfig) -> dict:
                                           "hybrid")
             say(f"reach table: {len(plan)} holes x {len(rig)} booms")
             postures = round_postures(plan, rig, solvers, reach, motions, round_settings)
-            finish = robust_finish(draw_settings, say, zone_settings) if settings.interlocks else None
+            rs = round_settings
+            finish, choose = (robust_hooks(draw_settings, zone_settings, rs.robust_candidates, rs.robust_slack,
+                                           rs.robust_min_gain, say) if settings.interlocks else (None, None))
             res = schedule_round(rig, plan, reach, motions, round_settings, settings.baselines,
-                                 settings.check_moves, say, finish, postures)
+                                 settings.check_moves, say, finish, postures, choose)
         finally:
             close()
         table = with_invalid_rows(res.round, plan)

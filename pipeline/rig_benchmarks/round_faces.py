@@ -23,7 +23,7 @@ import pandas as pd
 
 from pipeline.core.io import write_csv
 from pipeline.events.draws import STANDING_CAUSES, DrawSettings
-from pipeline.events.robust_round import robust_finish
+from pipeline.events.robust_round import robust_hooks
 from pipeline.events.zone_choice import ZoneSettings
 from pipeline.geometry.collision import SafetyModel
 from pipeline.geometry.rig import Rig
@@ -68,8 +68,11 @@ def round_benchmark(faces: Sequence, rigs: Sequence[BenchRig], hybrid: HybridSet
             solvers, reach = solved_reach(plan, rig, first_start, hybrid, box, "hybrid")
             postures = round_postures(plan, rig, solvers, reach, motions, settings)
             reach_s = time.perf_counter() - started
-            finish = robust_finish(draw_settings, zones=zone_settings) if draw_settings is not None else None
-            res = schedule_round(rig, plan, reach, motions, settings, True, True, finish=finish, postures=postures)
+            finish, choose = ((None, None) if draw_settings is None else
+                              robust_hooks(draw_settings, zone_settings, settings.robust_candidates,
+                                           settings.robust_slack, settings.robust_min_gain))
+            res = schedule_round(rig, plan, reach, motions, settings, True, True, finish=finish, postures=postures,
+                                 choose=choose)
             s = res.summary
             row = {"face": f"demo ({len(plan)})" if face == "demo" else f"gen {face} ({len(plan)})",
                    "rig": rig_name, "holes": len(plan), "drilled": s["holes_drilled"],
@@ -83,13 +86,22 @@ def round_benchmark(faces: Sequence, rigs: Sequence[BenchRig], hybrid: HybridSet
                    "conflicts_left": s["conflicts_left"],
                    "detours": s["moves"].get("retract", 0) + s["moves"].get("planned", 0),
                    "moves_failed": s["moves"].get("failed", 0), "seed": s.get("seed"), "stopped": s.get("stopped"),
-                   "baselines_s": res.timings["baselines_s"], **_executed(res.finished)}
+                   "robust_choice": _choice(s.get("robust_choice")),
+                   "baselines_s": res.timings["baselines_s"], "finish_s": res.timings["finish_s"],
+                   **_executed(res.finished)}
             rows.append(row)
             if trajectories is not None:  # for the independent check (scripts/check_round.py)
                 _write_set(trajectories / f"{'demo' if face == 'demo' else f'gen{face}'}_{rig_name}.csv", plan, res)
             say(f"{row['face']} x {rig_name}: makespan {row['makespan_s']:.0f} s, bound {row['lower_bound_s']:.0f} s, "
                 f"naive {row['naive_s']:.0f} s, nearest {row['nearest_s']:.0f} s, planned in {row['planning_s']:.1f} s")
     return pd.DataFrame(rows)
+
+
+def _choice(record: dict | None) -> str:
+    """The benchmark's cell: which of how many candidates the robust choice kept."""
+    if not record:
+        return "-"
+    return f"{record['chosen']} of {len(record['candidates'])}"
 
 
 def _write_set(plan_file: Path, plan, res) -> None:
@@ -126,7 +138,8 @@ def _executed(ex) -> dict:
 def markdown(table: pd.DataFrame) -> str:
     cols = ["face", "rig", "drilled", "makespan_s", "lower_bound_s", "ratio", "naive_s", "nearest_s", "moving_s",
             "waiting_s", "planning_s", "min_boom_clearance_m", "waits", "sequential", "detours", "moves_failed",
-            "plan_makespan_s", "robust_price_pct", "interlocks", "zones", "exec_p95", "standing_p95_pct",
+            "plan_makespan_s", "robust_price_pct", "interlocks", "zones", "robust_choice", "finish_s", "exec_p95",
+            "standing_p95_pct",
             *(f"{c}_p{q}_pct" for c in STANDING_CAUSES for q in (50, 95))]
     out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for _, r in table.iterrows():

@@ -34,7 +34,7 @@ from pipeline.plans.model import COLLAR, DrillPlan
 from pipeline.plans.reach import Reach
 from pipeline.plans.solutions import INVALID
 from pipeline.round.oracle import KinematicOracle
-from pipeline.round.planner import RoundPlan, baseline, better, make_book, plan_round
+from pipeline.round.planner import RoundPlan, baseline, better, make_book, near_best, plan_round
 from pipeline.round.postures import Postures, choose_postures, posture_bound
 from pipeline.round.problem import precedence_indices
 from pipeline.round.problem_file import RoundProblem
@@ -157,14 +157,19 @@ def problem_instance(rig: Rig, plan: DrillPlan, problem: RoundProblem, motions, 
 
 def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: RoundSettings,
                    baselines: bool = True, moves: bool = True, say=None, finish=None,
-                   postures: Postures | None = None) -> RoundResult:
+                   postures: Postures | None = None, choose=None) -> RoundResult:
     """Plan the round of ``plan`` on ``rig`` from its reach table (module docstring). ``finish``:
     ``(instance, timeline, oracle) -> (timeline, extra)``, called on the planned round; the tables and
     the summary are written from the timeline it returns (the execution layer's robust round, re-timed
     by events: :func:`pipeline.events.robust_round.robust_finish`), ``extra`` kept as ``RoundResult.finished``.
     ``postures``: more ok solutions per hole and boom (:func:`pipeline.round.postures.round_postures`):
     the round is planned again from the postures chosen along the best round's routes while that is
-    better (``round.posture_rounds``); the lower bound is then the least over every alternative."""
+    better (``round.posture_rounds``); the lower bound is then the least over every alternative.
+    ``choose``: ``[extra, ...] -> (index, record)``; given with ``finish``, the best round and the other
+    candidates of about its makespan (:func:`pipeline.round.planner.near_best`: ``round.robust_candidates``
+    within ``round.robust_slack``) are each finished and ``choose`` keeps one (the execution layer's: the
+    one whose booms stand least under drawn drilling times); ``record`` goes to the summary as
+    ``robust_choice``."""
     say = say or (lambda _m: None)
     inst, oracle, joints = round_instance(rig, plan, reach, motions, settings)
     first_oracle = oracle  # the reference's baselines drill the reach table's postures
@@ -184,8 +189,12 @@ def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
         nearest = first.baselines.get("nearest") or baseline(first.inst, first_oracle, "nearest", settings, first.book)
     inst = rp.inst if rp.book is None else rp.book.apply(rp.inst)  # the baselines' detours too
     names = rig.booms[0].boom.joint_names
+    final, finished, choice = rp.timeline, None, None
+    t_finish = time.perf_counter()
+    if finish is not None:
+        final, finished, choice = _finish_chosen(inst, rp, oracle, finish, choose, settings, say)
+    finish_s = time.perf_counter() - t_finish
     kinds, not_clear = move_report(inst, rp, rig) if moves else (None, [])
-    final, finished = (rp.timeline, None) if finish is None else finish(inst, rp.timeline, oracle)
     table = round_table(inst, final, [j.numpy() for j in joints], names)
     failed = rp.book.kinds(final.routes)[1] if rp.book is not None else []
     traj = trajectory_table(inst, final, oracle, names, failed)
@@ -208,11 +217,30 @@ def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
                 margin_m={**({k: rp.book.margin[k] for k in ("self", "tunnel")} if rp.book is not None else
                              {"self": None, "tunnel": None}), "boom": 0.0},
                 reproducible=settings.reproducible, postures=rp.postures)
+    if choice is not None:
+        s["robust_choice"] = choice
     s["moving_s"] = sum(v["moving_s"] for v in s["booms"].values())
     s["waiting_s"] = sum(v["waiting_s"] for v in s["booms"].values())
     timings = {"planning_s": rp.planning_s, "baselines_s": rp.baselines_s, "total_s": time.perf_counter() - started,
-               "moves_s": rp.book.seconds if rp.book is not None else 0.0}
+               "moves_s": rp.book.seconds if rp.book is not None else 0.0, "finish_s": finish_s}
     return RoundResult(inst, oracle, rp, naive, nearest, table, traj, s, not_clear, timings, final, finished)
+
+
+def _finish_chosen(inst, rp: RoundPlan, oracle, finish, choose, settings: RoundSettings, say):
+    """``finish`` on the best round or, given ``choose``, on each candidate of about its makespan, one
+    kept (``schedule_round``); ``rp`` then holds the kept round's timeline and where it came from."""
+    if choose is None or settings.robust_candidates < 2 or inst.n_booms < 2:  # one boom never stands
+        return (*finish(inst, rp.timeline, oracle), None)
+    cands = near_best(rp, settings.robust_slack, settings.robust_candidates)
+    done = [finish(inst, tl, oracle) for _, tl in cands]
+    k, record = choose([extra for _, extra in done]) if len(done) > 1 else (0, {})
+    label, tl = cands[k]
+    record = {"candidates": [lab for lab, _ in cands], "chosen": label,
+              "plan_makespans_s": [float(t.makespan) for _, t in cands], **record}
+    if k:
+        say(f"robust choice: {label} (makespan {tl.makespan:.1f} s) over the best's {rp.timeline.makespan:.1f} s")
+        rp.timeline, rp.seed, rp.kept_seed = tl, label, not label.startswith("routing")
+    return (*done[k], record)
 
 
 def _plan_postures(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: RoundSettings, postures: Postures,

@@ -67,6 +67,7 @@ class RoundPlan:
     stopped: str = ""  # why the re-optimisation stopped
     baselines_s: float = 0.0  # seconds of planning_s spent timing the reference's baselines
     postures: dict | None = None  # the posture choice (pipeline.round.postures), where it ran
+    timed: dict = field(default_factory=dict)  # label -> every candidate timeline this planning timed
 
 
 SEEDS = ("sweep -y", "sweep +y")  # the planner's starts (pipeline.round.seeds)
@@ -144,6 +145,7 @@ class _Start:
     seeds: dict = field(default_factory=dict)  # kind -> routes (the sweeps and the caller's candidates)
     baselines: dict = field(default_factory=dict)  # kind -> timeline of the reference's baselines
     baselines_s: float = 0.0
+    timed: dict = field(default_factory=dict)  # kind -> timeline of every candidate timed
 
 
 def _time_seeds(inst: Instance, timer: _Timer, clock: _Clock, settings: RoundSettings, baselines: bool,
@@ -167,13 +169,13 @@ def _time_seeds(inst: Instance, timer: _Timer, clock: _Clock, settings: RoundSet
     if not start.seeds:
         return start
     for kind, routes in start.seeds.items():
-        tl = clock.timed(timer, routes)
+        tl = start.timed[kind] = clock.timed(timer, routes)
         say(f"seed {kind}: makespan {tl.makespan:.1f} s, {tl.conflicts_left} conflicts left")
         if better(tl, start.best):
             start.best, start.seed = tl, kind
     t_base = time.perf_counter()
     for kind in BASELINES if baselines and seeded(inst) else ():  # reported, and candidates the routing can beat
-        tl = start.baselines[kind] = timer(seed_routes(inst, kind))
+        tl = start.baselines[kind] = start.timed[kind] = timer(seed_routes(inst, kind))
         say(f"baseline {kind}: makespan {tl.makespan:.1f} s, {tl.conflicts_left} conflicts left")
         if better(tl, start.best):
             start.best, start.seed = tl, kind
@@ -272,11 +274,13 @@ def plan_round(inst: Instance, oracle: ConflictOracle, settings: RoundSettings,
         if r is None:
             break
         t_timing = time.perf_counter()
-        tl = timer(r.routes)  # steps 2 and 3
+        tl = start.timed[f"routing {it}"] = timer(r.routes)  # steps 2 and 3
         say(f"round {it}: makespan {tl.makespan:.1f} s, {len(tl.repairs)} waits, {tl.conflicts_left} conflicts left")
         if better(tl, best):
             best = tl
         alt = reversed_variant(timer, r.routes, inst)
+        if alt is not None:
+            start.timed[f"routing {it}, one boom reversed"] = alt
         if alt is not None and better(alt, best):
             say(f"round {it}, one boom reversed: makespan {alt.makespan:.1f} s, {alt.conflicts_left} conflicts left")
             best = alt
@@ -302,7 +306,26 @@ def plan_round(inst: Instance, oracle: ConflictOracle, settings: RoundSettings,
     left_out = [int(h) for h in np.flatnonzero(~inst.drillable)]
     say(f"stopped: {stopped}")
     return RoundPlan(best, left_out, lb, rounds, penalised, sorted(apart), planning_s,
-                     seed, kept, start.baselines, timer.inst, book, stopped, start.baselines_s)
+                     seed, kept, start.baselines, timer.inst, book, stopped, start.baselines_s, timed=start.timed)
+
+
+def near_best(rp: RoundPlan, slack: float, count: int) -> list[tuple[str, Timeline]]:
+    """The plan's best round and up to ``count - 1`` other candidates it timed that are as good on
+    every count (conflicts left, failed moves, the one-boom fallback) and whose makespan is within
+    ``slack`` (a share) of the best's: the shortest first, each set of routes once. What the round made
+    robust chooses among (:func:`pipeline.round.from_plan.schedule_round`, ``choose``)."""
+    best = rp.timeline
+    out: list[tuple[str, Timeline]] = [("best", best)]
+    key = (best.conflicts_left, best.failed_moves, best.sequential)
+    near = sorted(((label, tl) for label, tl in rp.timed.items()
+                   if (tl.conflicts_left, tl.failed_moves, tl.sequential) == key
+                   and tl.makespan <= best.makespan * (1 + slack)), key=lambda c: c[1].makespan)
+    for label, tl in near:
+        if len(out) >= count:
+            break
+        if all(tl.routes != t.routes for _, t in out):
+            out.append((label, tl))
+    return out
 
 
 def _reverse_one(routes: list[list[int]], b: int) -> list[list[int]]:

@@ -67,6 +67,10 @@ class RoundSettings:
     posture_unclear_s: float = field(default=30.0, metadata=rule(ge=0, le=1e6))
     posture_rounds: int = field(default=2, metadata=rule(ge=1, le=10))  # plannings on chosen postures, while better
     posture_seed: int = field(default=0, metadata=rule(ge=0, le=SEED_MAX))
+    # rounds made robust and compared: the best and others within robust_slack of its makespan (1: the best)
+    robust_candidates: int = field(default=4, metadata=rule(ge=1, le=50))
+    robust_slack: float = field(default=0.005, metadata=rule(ge=0, le=1))
+    robust_min_gain: float = field(default=0.005, metadata=rule(ge=0, le=1))  # standing p95 a round must cut
 
     @property
     def reproducible(self) -> bool:
