@@ -10,7 +10,7 @@ import pytest
 
 from pipeline.events.draws import DrawSettings
 from pipeline.events.robust_round import pick_draws, robust_choice
-from pipeline.round.planner import RoundPlan, near_best
+from pipeline.round.planner import RoundPlan, near_best, time_more_sweeps
 from pipeline.round.timeline import Timeline
 
 
@@ -100,3 +100,43 @@ def test_rounds_are_compared_on_draws_other_than_the_ones_reported():
     assert pick_draws(s).seed == 8 and pick_draws(DrawSettings(seed=2**32 - 1)).seed == 0
     assert reported.factors.shape == compared.factors.shape
     assert not np.allclose(reported.factors[:50], compared.factors[:50])
+
+
+def test_more_sweeps_are_timed_as_the_planner_times_a_candidate_and_each_set_of_routes_once():
+    from test_round import FAST, SetOracle, synthetic
+
+    from pipeline.round.planner import plan_round, seed_routes, timed_routes
+
+    inst = synthetic(H=24, B=2, seed=3)
+    oracle = SetOracle({(0, 1): {(2, 5), (7, 7)}, (1, 0): {(5, 2), (7, 7)}})  # planted conflicts
+    rp = plan_round(inst, oracle, FAST)
+    before = dict(rp.timed)
+    n = time_more_sweeps(rp, oracle, FAST, [0.5, 1.0, 3.0])
+    new = {k: tl for k, tl in rp.timed.items() if k not in before}
+    assert n == len(new) > 0
+    assert all(tl is before[k] for k, tl in before.items() if k in rp.timed)  # the planning's own untouched
+    # the 1 m sweeps are the planning's own seeds: not timed again
+    assert not any("band 1 m" in k for k in new)
+    routes = [tl.routes for tl in rp.timed.values()]
+    assert all(sum(r == x for x in routes) == 1 for r in routes)  # each set of routes once
+    for kind, tl in new.items():
+        direction, band = kind.split(", band ")
+        expected = timed_routes(inst, oracle, FAST, None, seed_routes(inst, direction, float(band.split()[0])))
+        assert tl.routes == expected.routes and tl.makespan == pytest.approx(expected.makespan, abs=1e-9)
+        assert tl.conflicts_left == expected.conflicts_left
+
+
+@pytest.mark.parametrize("node, match", [
+    ({"robust_bands_m": [1.0, 0]}, r"round.robust_bands_m\[1\] = 0.0: expected a band width in \(0, 20\] m"),
+    ({"robust_bands_m": [True]}, r"round.robust_bands_m\[0\] = True"),
+    ({"robust_bands_m": [0.5] * 21}, r"round.robust_bands_m: 21 bands, at most 20"),
+    ({"robust_candidates": 0}, r"round.robust_candidates = 0"),
+    ({"robust_slack": -0.1}, r"round.robust_slack"),
+    ({"robust_min_gain": 2}, r"round.robust_min_gain"),
+])
+def test_the_choices_settings_are_bounded_and_named(node, match):
+    from pipeline.core.errors import ConfigError
+    from pipeline.round.settings import parse_round
+
+    with pytest.raises(ConfigError, match=match):
+        parse_round(node, "round")

@@ -34,7 +34,7 @@ from pipeline.plans.model import COLLAR, DrillPlan
 from pipeline.plans.reach import Reach
 from pipeline.plans.solutions import INVALID
 from pipeline.round.oracle import KinematicOracle
-from pipeline.round.planner import RoundPlan, baseline, better, make_book, near_best, plan_round
+from pipeline.round.planner import RoundPlan, baseline, better, make_book, near_best, plan_round, time_more_sweeps
 from pipeline.round.postures import Postures, choose_postures, posture_bound
 from pipeline.round.problem import precedence_indices
 from pipeline.round.problem_file import RoundProblem
@@ -165,9 +165,10 @@ def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
     ``postures``: more ok solutions per hole and boom (:func:`pipeline.round.postures.round_postures`):
     the round is planned again from the postures chosen along the best round's routes while that is
     better (``round.posture_rounds``); the lower bound is then the least over every alternative.
-    ``choose``: ``[extra, ...] -> (index, record)``; given with ``finish``, the best round and the other
-    candidates of about its makespan (:func:`pipeline.round.planner.near_best`: ``round.robust_candidates``
-    within ``round.robust_slack``) are each finished and ``choose`` keeps one (the execution layer's: the
+    ``choose``: ``[extra, ...] -> (index, record)``; given with ``finish`` (and two booms or more), sweeps
+    in the bands ``round.robust_bands_m`` are timed too, and the best round and the other candidates of
+    about its makespan (:func:`pipeline.round.planner.near_best`: ``round.robust_candidates`` within
+    ``round.robust_slack``) are each finished and ``choose`` keeps one (the execution layer's: the
     one whose booms stand least under drawn drilling times); ``record`` goes to the summary as
     ``robust_choice``."""
     say = say or (lambda _m: None)
@@ -187,12 +188,17 @@ def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
     if baselines:
         naive = first.baselines.get("naive") or baseline(first.inst, first_oracle, "naive", settings, first.book)
         nearest = first.baselines.get("nearest") or baseline(first.inst, first_oracle, "nearest", settings, first.book)
+    # one boom never stands: nothing to choose
+    comparing = finish is not None and choose is not None and settings.robust_candidates > 1 and rp.inst.n_booms > 1
+    t_finish = time.perf_counter()
+    if comparing:  # more rounds to choose from (docs/round.md, "Choosing the round that stands least")
+        say(f"robust choice: {time_more_sweeps(rp, oracle, settings, settings.robust_bands_m)} more sweeps timed")
     inst = rp.inst if rp.book is None else rp.book.apply(rp.inst)  # the baselines' detours too
     names = rig.booms[0].boom.joint_names
     final, finished, choice = rp.timeline, None, None
-    t_finish = time.perf_counter()
     if finish is not None:
-        final, finished, choice = _finish_chosen(inst, rp, oracle, finish, choose, settings, say)
+        final, finished, choice = _finish_chosen(inst, rp, oracle, finish, choose if comparing else None, settings,
+                                                 say)
     finish_s = time.perf_counter() - t_finish
     kinds, not_clear = move_report(inst, rp, rig) if moves else (None, [])
     table = round_table(inst, final, [j.numpy() for j in joints], names)
@@ -229,7 +235,7 @@ def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
 def _finish_chosen(inst, rp: RoundPlan, oracle, finish, choose, settings: RoundSettings, say):
     """``finish`` on the best round or, given ``choose``, on each candidate of about its makespan, one
     kept (``schedule_round``); ``rp`` then holds the kept round's timeline and where it came from."""
-    if choose is None or settings.robust_candidates < 2 or inst.n_booms < 2:  # one boom never stands
+    if choose is None:
         return (*finish(inst, rp.timeline, oracle), None)
     cands = near_best(rp, settings.robust_slack, settings.robust_candidates)
     done = [finish(inst, tl, oracle) for _, tl in cands]

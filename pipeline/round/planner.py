@@ -154,17 +154,7 @@ def _time_seeds(inst: Instance, timer: _Timer, clock: _Clock, settings: RoundSet
     each timed; the best is the first candidate and the routing's initial solution."""
     start = _Start()
     if seeded(inst):
-        start.seeds = {kind: seed_routes(inst, kind, settings.sweep_band_m) for kind in SEEDS}
-        for band in settings.sweep_more_bands_m:  # the best band depends on the face (docs/design.md)
-            for kind in SEEDS:
-                _add_seed(start.seeds, f"{kind}, band {band:g} m", seed_routes(inst, kind, band))
-        kinematic = isinstance(timer.oracle, KinematicOracle)
-        if settings.clear_ends and inst.start is None and inst.n_booms > 1 and kinematic:
-            # each sweep also with ends clear of the other booms' parks, where that changes it (both timed:
-            # a blocked first move is often cleared by a wait, the other boom leaving park at the start)
-            blocked = park_blocked(inst, timer.oracle, 0, settings.blocked_screen_m)  # the moves from and to park
-            for kind, routes in list(start.seeds.items()):
-                _add_seed(start.seeds, f"{kind}, ends clear", clear_ends(routes, blocked, inst.precedence))
+        start.seeds = sweeps(inst, timer.oracle, settings, settings.sweep_band_m, settings.sweep_more_bands_m)
     start.seeds.update({k: first_where_standing(inst, r) for k, r in (candidates or {}).items()})
     if not start.seeds:
         return start
@@ -181,6 +171,42 @@ def _time_seeds(inst: Instance, timer: _Timer, clock: _Clock, settings: RoundSet
             start.best, start.seed = tl, kind
     start.baselines_s = time.perf_counter() - t_base
     return start
+
+
+def sweeps(inst: Instance, oracle, settings: RoundSettings, band_m: float | None, more_bands_m) -> dict:
+    """The sweep seeds (kind -> routes): both directions in bands of ``band_m`` (named by direction
+    alone; None: none) and of each of ``more_bands_m``, and (``round.clear_ends``) each also with its
+    ends clear of the other booms' parks where that changes it; each set of routes once."""
+    seeds: dict = {}
+    if band_m is not None:
+        seeds = {kind: seed_routes(inst, kind, band_m) for kind in SEEDS}
+    for band in more_bands_m:  # the best band depends on the face (docs/design.md)
+        for kind in SEEDS:
+            _add_seed(seeds, f"{kind}, band {band:g} m", seed_routes(inst, kind, band))
+    if settings.clear_ends and inst.start is None and inst.n_booms > 1 and isinstance(oracle, KinematicOracle):
+        # each sweep also with ends clear of the other booms' parks, where that changes it (both timed:
+        # a blocked first move is often cleared by a wait, the other boom leaving park at the start)
+        blocked = park_blocked(inst, oracle, 0, settings.blocked_screen_m)  # the moves from and to park
+        for kind, routes in list(seeds.items()):
+            _add_seed(seeds, f"{kind}, ends clear", clear_ends(routes, blocked, inst.precedence))
+    return seeds
+
+
+def time_more_sweeps(rp: RoundPlan, oracle, settings: RoundSettings, bands_m) -> int:
+    """Sweeps in the bands ``bands_m`` timed on the plan's instance as the planner times a candidate,
+    into ``rp.timed`` (those whose routes the planning timed already are not timed again), for the
+    robust choice (``round.robust_bands_m``); the plan's instance takes the new moves' detours. How
+    many were timed."""
+    if not seeded(rp.inst) or not bands_m:
+        return 0
+    timer = _Timer(rp.inst, oracle, settings, rp.book)
+    n = 0
+    for kind, routes in sweeps(rp.inst, oracle, settings, None, bands_m).items():
+        if all(routes != tl.routes for tl in rp.timed.values()):
+            rp.timed[kind] = timer(routes)
+            n += 1
+    rp.inst = timer.inst
+    return n
 
 
 def _add_seed(seeds: dict, kind: str, routes: list[list[int]]) -> None:

@@ -71,6 +71,7 @@ class RoundSettings:
     robust_candidates: int = field(default=4, metadata=rule(ge=1, le=50))
     robust_slack: float = field(default=0.005, metadata=rule(ge=0, le=1))
     robust_min_gain: float = field(default=0.005, metadata=rule(ge=0, le=1))  # standing p95 a round must cut
+    robust_bands_m: list[float] = field(default_factory=lambda: [0.5, 1.25, 1.75, 2.5])  # more sweeps to compare
 
     @property
     def reproducible(self) -> bool:
@@ -80,14 +81,14 @@ class RoundSettings:
 
 def parse_round(node: Mapping, source: str = "conf/round") -> RoundSettings:
     s = parse(RoundSettings, node, source)
-    if len(s.sweep_more_bands_m) > 20:
-        raise ConfigError(f"{source}.sweep_more_bands_m: {len(s.sweep_more_bands_m)} bands, at most 20 (each is "
-                          "another sweep timed)")
-    for k, band in enumerate(s.sweep_more_bands_m):
-        if (isinstance(band, bool) or not isinstance(band, (int, float)) or not band > 0
-                or not band <= MAX_BAND_M):
-            raise ConfigError(f"{source}.sweep_more_bands_m[{k}] = {band!r}: expected a band width in (0, "
-                              f"{MAX_BAND_M:g}] m")
+    for name in ("sweep_more_bands_m", "robust_bands_m"):
+        bands = getattr(s, name)
+        if len(bands) > 20:
+            raise ConfigError(f"{source}.{name}: {len(bands)} bands, at most 20 (each is another sweep timed)")
+        for k, band in enumerate(bands):
+            if (isinstance(band, bool) or not isinstance(band, (int, float)) or not band > 0
+                    or not band <= MAX_BAND_M):
+                raise ConfigError(f"{source}.{name}[{k}] = {band!r}: expected a band width in (0, {MAX_BAND_M:g}] m")
     for k, pair in enumerate(s.precedence):
         if len(pair) != 2:
             raise ConfigError(f"{source}.precedence[{k}] = {pair!r}: expected [hole_id_before, hole_id_after]")
