@@ -192,7 +192,8 @@ def schedule_round(rig: Rig, plan: DrillPlan, reach: Reach, motions, settings: R
     comparing = finish is not None and choose is not None and settings.robust_candidates > 1 and rp.inst.n_booms > 1
     t_finish = time.perf_counter()
     if comparing:  # more rounds to choose from (docs/round.md, "Choosing the round that stands least")
-        say(f"robust choice: {time_more_sweeps(rp, oracle, settings, settings.robust_bands_m)} more sweeps timed")
+        timed = time_more_sweeps(rp, oracle, settings, settings.robust_bands_m)
+        say(f"robust choice: {timed} more sweeps timed")
     inst = rp.inst if rp.book is None else rp.book.apply(rp.inst)  # the baselines' detours too
     names = rig.booms[0].boom.joint_names
     final, finished, choice = rp.timeline, None, None
